@@ -1,0 +1,1 @@
+"""ROS-free science: body model, cameras, rendering, gait, segmentation, filters."""

@@ -1,0 +1,1 @@
+"""rclpy-side helpers shared by nodes and tools: message conversions, QoS."""

@@ -1,0 +1,153 @@
+"""Writing and reading rosbag2 files without DDS (rosbags), in Jazzy's layout.
+
+Bags are written from ``typestore.serialize_cdr`` (never from rclpy's
+``serialize_message``, whose padding rosbags' strict decoder rejects) as mcap
+with metadata version 9, like ``ros2 bag record`` on Jazzy.  Reading
+deserializes with rclpy, which tolerates both, so any Jazzy bag reads.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_T = TYPESTORE.types
+
+
+def stamp_to_ns(stamp) -> int:
+    """builtin_interfaces/Time (either flavour) to integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def header(stamp_ns: int, frame_id: str):
+    """A std_msgs/Header for the typestore."""
+    return _T['std_msgs/msg/Header'](
+        stamp=_T['builtin_interfaces/msg/Time'](sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000),
+        frame_id=frame_id)
+
+
+def image_msg(stamp_ns: int, frame_id: str, pixels: np.ndarray, encoding: str):
+    """sensor_msgs/Image from a (H, W) or (H, W, C) array."""
+    pixels = np.ascontiguousarray(pixels)
+    h, w = pixels.shape[:2]
+    step = pixels.strides[0]
+    return _T['sensor_msgs/msg/Image'](
+        header=header(stamp_ns, frame_id), height=h, width=w, encoding=encoding,
+        is_bigendian=0, step=step, data=pixels.view(np.uint8).reshape(-1))
+
+
+def camera_info_msg(stamp_ns: int, fields: dict):
+    """sensor_msgs/CameraInfo from :meth:`Camera.to_camera_info_fields`."""
+    roi = _T['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return _T['sensor_msgs/msg/CameraInfo'](
+        header=header(stamp_ns, fields['frame_id']), height=int(fields['height']), width=int(fields['width']),
+        distortion_model=fields['distortion_model'], d=np.asarray(fields['d'], np.float64),
+        k=np.asarray(fields['k'], np.float64), r=np.asarray(fields['r'], np.float64),
+        p=np.asarray(fields['p'], np.float64), binning_x=0, binning_y=0, roi=roi)
+
+
+def joint_state_msg(stamp_ns: int, names, positions, velocities=()):
+    """sensor_msgs/JointState (frame ``world``)."""
+    return _T['sensor_msgs/msg/JointState'](
+        header=header(stamp_ns, 'world'), name=list(names),
+        position=np.asarray(positions, np.float64), velocity=np.asarray(velocities, np.float64),
+        effort=np.zeros(0, np.float64))
+
+
+def pose_array_msg(stamp_ns: int, positions: np.ndarray, quaternions_xyzw: np.ndarray):
+    """geometry_msgs/PoseArray in ``world``, one pose per row."""
+    point, quat, pose = _T['geometry_msgs/msg/Point'], _T['geometry_msgs/msg/Quaternion'], _T['geometry_msgs/msg/Pose']
+    poses = [pose(position=point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                  orientation=quat(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+             for p, q in zip(positions, quaternions_xyzw)]
+    return _T['geometry_msgs/msg/PoseArray'](header=header(stamp_ns, 'world'), poses=poses)
+
+
+class BagWriter:
+    """A rosbag2 writer that registers topics on first use and serializes typestore messages."""
+
+    def __init__(self, path: str | Path, storage: str = 'mcap') -> None:
+        path = Path(path)
+        if path.exists():
+            raise FileExistsError(f'output bag {path} exists already')
+        plugin = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}.get(storage)
+        if plugin is None:
+            raise ValueError(f'unknown storage {storage!r} (mcap or sqlite3)')
+        self._writer = Writer(path, version=9, storage_plugin=plugin)
+        self._writer.open()
+        self._connections = {}
+        self.path = path
+
+    def write(self, topic: str, stamp_ns: int, message) -> None:
+        """Serialize and append ``message`` on ``topic`` with log time ``stamp_ns``."""
+        conn = self._connections.get(topic)
+        if conn is None:
+            conn = self._writer.add_connection(topic, message.__msgtype__, typestore=TYPESTORE)
+            self._connections[topic] = conn
+        self._writer.write(conn, stamp_ns, bytes(TYPESTORE.serialize_cdr(message, message.__msgtype__)))
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> 'BagWriter':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass
+class BagMessage:
+    """One deserialized message of a bag (an rclpy message object)."""
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    message: object
+
+
+def message_class(msgtype: str):
+    """The rclpy message class for 'pkg/msg/Name'."""
+    pkg, kind, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
+
+
+def open_reader(path: str | Path) -> Reader:
+    """Open a rosbag2 for reading, with a clear error when it is not one."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f'no bag at {path}')
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - rosbags raises several unrelated types
+        raise ValueError(f'cannot read bag {path}: {exc}') from exc
+    return reader
+
+
+def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator[BagMessage]:
+    """Deserialized messages of ``topics`` (all if None) in log-time order."""
+    from rclpy.serialization import deserialize_message
+    reader = open_reader(path)
+    try:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        classes = {c.id: message_class(c.msgtype) for c in conns}
+        for conn, timestamp, data in reader.messages(connections=conns):
+            yield BagMessage(conn.topic, conn.msgtype, timestamp, deserialize_message(data, classes[conn.id]))
+    finally:
+        reader.close()
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """Topic -> type of a bag."""
+    reader = open_reader(path)
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()

@@ -1,0 +1,59 @@
+"""`memo-ros`: one command for simulation, bags, echo, evaluation and benchmarks.
+
+Each sub-command lives in its own module exposing ``add_arguments(parser)`` and
+``run(args) -> int``; errors a user can cause raise :class:`CliError` and end as
+one line on stderr with a non-zero exit, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+# name -> (module, one-line help)
+COMMANDS = {
+    'simulate': ('memo_ros.tools.simulate', 'render a simulated scenario into a rosbag2 with ground truth'),
+    'bag': ('memo_ros.tools.bag', 'inspect, play and record rosbag2 files over DDS'),
+    'echo': ('memo_ros.tools.echo', 'print messages of a topic as YAML (or CSV rows)'),
+    'evaluate': ('memo_ros.tools.evaluate', 'score estimated poses against ground truth'),
+    'benchmark': ('memo_ros.tools.benchmark', 'measure speed of the core and tools'),
+}
+
+
+class CliError(Exception):
+    """An error caused by the user's input: printed as one line, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='memo-ros', description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest='command', metavar='COMMAND')
+    sub.required = True
+    for name, (module_name, help_text) in COMMANDS.items():
+        module = importlib.import_module(module_name)
+        sub_parser = sub.add_parser(name, help=help_text, description=module.__doc__.splitlines()[0])
+        module.add_arguments(sub_parser)
+        sub_parser.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print('memo-ros: interrupted', file=sys.stderr)
+        return 130
+    except CliError as exc:
+        print(f'memo-ros {args.command}: error: {exc}', file=sys.stderr)
+        return 2
+    except (OSError, ValueError, KeyError, RuntimeError) as exc:
+        if os.environ.get('MEMO_ROS_DEBUG'):
+            raise
+        print(f'memo-ros {args.command}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

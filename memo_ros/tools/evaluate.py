@@ -1,0 +1,154 @@
+"""Score estimated body poses against ground truth, matching frames by header stamp.
+
+Truth comes from ``/memo/truth/body_poses`` and ``/memo/truth/joint_states``;
+the estimate from ``/memo/body_poses`` and ``/memo/joint_states`` (or, for a
+bag holding only truth, its truth topics).  Prints per-part and summary errors,
+``--json`` one object, ``--plots DIR`` PNG plots and overlays.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from memo_ros.core.body import PART_NAMES, load_default_body
+from memo_ros.core.metrics import FrameErrors, per_part_table, phase_error, pose_errors, summarize
+from memo_ros.core.rotations import quat_to_matrix
+from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
+
+ESTIMATE_TOPICS = ('/memo/body_poses', '/memo/joint_states')
+TRUTH_TOPICS = ('/memo/truth/body_poses', '/memo/truth/joint_states')
+
+
+@dataclass
+class PoseTrack:
+    """Poses and joint states of one bag, keyed by header stamp (ns)."""
+
+    origins: dict[int, np.ndarray]
+    rotations: dict[int, np.ndarray]
+    joints: dict[int, dict[str, float]]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--truth', required=True, type=Path, help='bag with /memo/truth/* (the simulator\'s)')
+    parser.add_argument('--estimate', required=True, type=Path, help='bag with /memo/body_poses and /memo/joint_states')
+    parser.add_argument('--studio', type=Path, help='studio YAML (body height, cameras for overlays); '
+                        'default: TRUTH.yaml beside the truth bag, else the shipped body')
+    parser.add_argument('--tolerance-ms', type=float, default=1.0, help='stamp matching tolerance')
+    parser.add_argument('--json', action='store_true', help='print one JSON object instead of tables')
+    parser.add_argument('--per-frame', type=Path, help='write per-frame errors as CSV to this file')
+    parser.add_argument('--plots', type=Path, help='write PNG plots and overlays into this directory')
+
+
+def run(args: argparse.Namespace) -> int:
+    from memo_ros.tools.cli import CliError
+    studio = _find_studio(args.truth, args.studio)
+    body = studio.body if studio else load_default_body()
+    truth = load_track(args.truth, TRUTH_TOPICS)
+    if not truth.origins:
+        raise CliError(f'{args.truth} has no {TRUTH_TOPICS[0]} messages')
+    topics = bag_topics(args.estimate)
+    estimate = load_track(args.estimate, ESTIMATE_TOPICS if ESTIMATE_TOPICS[0] in topics else TRUTH_TOPICS)
+    if not estimate.origins:
+        raise CliError(f'{args.estimate} has no {ESTIMATE_TOPICS[0]} (nor truth) messages')
+    errors = match_and_measure(truth, estimate, int(args.tolerance_ms * 1e6))
+    height = body.standing_height()
+    summary = summarize(errors, height, len(truth.origins))
+    if args.per_frame:
+        _write_per_frame(args.per_frame, errors)
+    if args.plots:
+        from memo_ros.tools.plots import write_plots
+        summary['plots'] = [str(p) for p in write_plots(args.plots, truth, estimate, errors, body, studio,
+                                                        args.truth)]
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print_report(summary, per_part_table(errors, PART_NAMES, height))
+    return 0
+
+
+def load_track(path: Path, topics: tuple[str, str]) -> PoseTrack:
+    """Read body poses and joint states of ``topics`` from a bag."""
+    track = PoseTrack({}, {}, {})
+    for m in read_messages(path, list(topics)):
+        stamp = stamp_to_ns(m.message.header.stamp)
+        if m.topic == topics[0]:
+            poses = m.message.poses
+            if len(poses) != len(PART_NAMES):
+                continue
+            track.origins[stamp] = np.array([[p.position.x, p.position.y, p.position.z] for p in poses])
+            track.rotations[stamp] = quat_to_matrix(np.array(
+                [[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in poses]))
+        else:
+            track.joints[stamp] = dict(zip(m.message.name, m.message.position))
+    return track
+
+
+def match_and_measure(truth: PoseTrack, estimate: PoseTrack, tolerance_ns: int) -> FrameErrors:
+    """Pair every truth frame with the estimate of the nearest stamp within the tolerance and measure."""
+    est_stamps = np.array(sorted(estimate.origins), dtype=np.int64)
+    pairs = []
+    for stamp in sorted(truth.origins):
+        k = int(np.searchsorted(est_stamps, stamp))
+        candidates = [i for i in (k - 1, k) if 0 <= i < len(est_stamps)]
+        if not candidates:
+            continue
+        best = int(est_stamps[min(candidates, key=lambda i: abs(int(est_stamps[i]) - stamp))])
+        if abs(best - stamp) <= tolerance_ns:
+            pairs.append((stamp, best))
+    if not pairs:
+        return FrameErrors(np.zeros(0, np.int64), np.zeros((0, len(PART_NAMES))), np.zeros((0, len(PART_NAMES))),
+                           None)
+    t_o = np.stack([truth.origins[t] for t, _ in pairs])
+    t_r = np.stack([truth.rotations[t] for t, _ in pairs])
+    e_o = np.stack([estimate.origins[e] for _, e in pairs])
+    e_r = np.stack([estimate.rotations[e] for _, e in pairs])
+    joint_mm, axis_deg = pose_errors(t_o, t_r, e_o, e_r)
+    phase = None
+    if all('gait_phase' in truth.joints.get(t, {}) and 'gait_phase' in estimate.joints.get(e, {})
+           for t, e in pairs):
+        phase = phase_error([estimate.joints[e]['gait_phase'] for _, e in pairs],
+                            [truth.joints[t]['gait_phase'] for t, _ in pairs])
+    return FrameErrors(np.array([t for t, _ in pairs]), joint_mm, axis_deg, phase)
+
+
+def print_report(summary: dict, parts: list[dict]) -> None:
+    """Human-readable tables: per part, then the summary."""
+    print(f'{"part":<12} {"joint mean mm":>13} {"joint max mm":>12} {"transl max %h":>13} '
+          f'{"axis mean deg":>13} {"axis max deg":>12}')
+    for row in parts:
+        print(f'{row["part"]:<12} {row["joint_mm_mean"]:>13.1f} {row["joint_mm_max"]:>12.1f} '
+              f'{row["translation_pct_height_max"]:>13.2f} {row["axis_deg_mean"]:>13.2f} {row["axis_deg_max"]:>12.2f}')
+    print()
+    for key, value in summary.items():
+        if key == 'plots':
+            continue
+        text = 'n/a' if value is None else (f'{value:.3f}' if isinstance(value, float) else str(value))
+        print(f'{key:<28} {text}')
+    if summary.get('plots'):
+        print(f'plots                        {len(summary["plots"])} files in '
+              f'{Path(summary["plots"][0]).parent}')
+
+
+def _write_per_frame(path: Path, errors: FrameErrors) -> None:
+    header = ['stamp_ns', 'mpjpe_mm', 'joint_mm_max', 'axis_deg_max'] + (['phase_err'] if errors.phase is not None else [])
+    lines = [','.join(header)]
+    for k, stamp in enumerate(errors.stamps_ns):
+        row = [str(int(stamp)), f'{errors.mpjpe_mm[k]:.3f}', f'{errors.joint_mm[k].max():.3f}',
+               f'{errors.axis_deg[k].max():.3f}']
+        if errors.phase is not None:
+            row.append(f'{errors.phase[k]:.4f}')
+        lines.append(','.join(row))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
+
+
+def _find_studio(truth: Path, given: Path | None):
+    from memo_ros.core.studio import Studio
+    if given is not None:
+        return Studio.load(given)
+    beside = truth.with_name(truth.name + '.yaml')
+    return Studio.load(beside) if beside.is_file() else None

@@ -1,0 +1,186 @@
+"""Render a simulated scenario into a rosbag2 with ground truth and a studio YAML beside it.
+
+Per camera ``/<cam>/image_raw`` and ``/<cam>/camera_info``; the truth on
+``/memo/truth/joint_states`` and ``/memo/truth/body_poses`` with the tracker's
+types and conventions.  The studio file ``OUT.yaml`` starts the graph.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from memo_ros.core.body import Body, load_default_body
+from memo_ros.core.imaging import ImagingOptions, background_image, compose_frame
+from memo_ros.core.render import render
+from memo_ros.core.rotations import matrix_to_quat
+from memo_ros.core.scenarios import SCENARIOS, Scenario, make_scenario
+from memo_ros.core.studio import Studio
+from memo_ros.tools.bagio import BagWriter, camera_info_msg, image_msg, joint_state_msg, pose_array_msg
+from memo_ros.tools.progress import Progress
+
+START_NS = 1_767_225_600 * 1_000_000_000     # 2026-01-01T00:00:00Z: fixed, so runs are reproducible
+ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8')
+TRUTH_JOINTS = '/memo/truth/joint_states'
+TRUTH_POSES = '/memo/truth/body_poses'
+
+
+@dataclass
+class SimulationResult:
+    """What a simulation wrote."""
+
+    bag: Path
+    studio: Path
+    frames: int
+    cameras: list[str]
+    seconds: float
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('scenario', help=f'one of: {", ".join(SCENARIOS)}')
+    parser.add_argument('--out', '-o', type=Path, help='output bag directory (default out/<scenario>); '
+                        'the studio YAML is written beside it as OUT.yaml')
+    parser.add_argument('--frames', type=int, help='number of frames (default per scenario)')
+    parser.add_argument('--rate', type=float, help='frames per second (default per scenario)')
+    parser.add_argument('--width', type=int, default=640)
+    parser.add_argument('--height', type=int, default=480)
+    parser.add_argument('--noise', type=float, default=3.0, help='sensor noise sigma in grey levels (0 = none)')
+    parser.add_argument('--blur', type=float, default=0.0, help='optical blur sigma in pixels')
+    parser.add_argument('--lighting-change', type=float, default=0.0,
+                        help='amplitude of a slow global lighting change (0.1 = +-10%%)')
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--encoding', default='mono8', help=f'image encoding: {", ".join(ENCODINGS)}')
+    parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
+    parser.add_argument('--body', type=Path, help='body YAML (default: the shipped average adult)')
+    parser.add_argument('--force', action='store_true', help='replace an existing output')
+    parser.add_argument('--progress', action='store_true', help='show progress even when not on a terminal')
+
+
+def run(args: argparse.Namespace) -> int:
+    from memo_ros.tools.cli import CliError
+    if args.scenario not in SCENARIOS:
+        raise CliError(f'unknown scenario {args.scenario!r}; known: {", ".join(SCENARIOS)}')
+    if args.encoding not in ENCODINGS:
+        raise CliError(f'unknown encoding {args.encoding!r}; known: {", ".join(ENCODINGS)}')
+    for name in ('frames', 'width', 'height'):
+        value = getattr(args, name)
+        if value is not None and value <= 0:
+            raise CliError(f'--{name} must be positive')
+    if args.rate is not None and args.rate <= 0:
+        raise CliError('--rate must be positive')
+    if min(args.noise, args.blur, args.lighting_change) < 0:
+        raise CliError('--noise, --blur and --lighting-change must not be negative')
+    body = Body.from_yaml(args.body) if args.body else load_default_body()
+    out = args.out or Path('out') / args.scenario
+    result = simulate(args.scenario, out, body=body, frames=args.frames, frame_rate=args.rate,
+                      width=args.width, height=args.height,
+                      options=ImagingOptions(args.noise, args.blur, args.lighting_change, args.seed),
+                      encoding=args.encoding, storage=args.storage, force=args.force,
+                      progress=args.progress or sys.stderr.isatty())
+    print(f'scenario   {args.scenario}')
+    print(f'bag        {result.bag}  ({result.frames} frames x {len(result.cameras)} cameras: '
+          f'{", ".join(result.cameras)})')
+    print(f'studio     {result.studio}')
+    print(f'topics     ' + ', '.join([f'/{c}/image_raw, /{c}/camera_info' for c in result.cameras]
+                                     + [TRUTH_JOINTS, TRUTH_POSES]))
+    print(f'time       {result.seconds:.1f} s ({result.frames / max(result.seconds, 1e-9):.1f} frames/s)')
+    return 0
+
+
+def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: int | None = None,
+             frame_rate: float | None = None, width: int = 640, height: int = 480,
+             options: ImagingOptions | None = None, encoding: str = 'mono8', storage: str = 'mcap',
+             force: bool = False, progress: bool = False, drop: dict[str, int] | None = None) -> SimulationResult:
+    """Simulate ``scenario_name`` into the bag ``out`` and the studio ``out.yaml``.
+
+    ``drop`` maps a camera name to the frame index from which it stops publishing
+    (a camera lost mid-run).
+    """
+    body = body or load_default_body()
+    options = options or ImagingOptions()
+    scenario = make_scenario(scenario_name, body, width, height, frames, frame_rate)
+    out = Path(out)
+    studio_path = out.with_name(out.name + '.yaml')
+    if out.exists():
+        if not force:
+            raise FileExistsError(f'{out} exists already (use --force to replace it)')
+        shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Studio(scenario_name.replace('-', '_'), scenario.cameras, body, scenario.frame_rate).save(studio_path)
+    start = time.perf_counter()
+    _write_bag(scenario, body, out, options, encoding, storage, progress, drop or {})
+    return SimulationResult(out, studio_path, scenario.frames, [c.name for c in scenario.cameras],
+                            time.perf_counter() - start)
+
+
+def _write_bag(scenario: Scenario, body: Body, out: Path, options: ImagingOptions, encoding: str,
+               storage: str, progress: bool, drop: dict[str, int]) -> None:
+    rng = np.random.default_rng(options.seed)
+    times = np.arange(scenario.frames) / scenario.frame_rate
+    q_all, phase_all = scenario.coordinates(times)
+    qd_all = scenario.velocities(times)
+    backgrounds = {c.name: background_image(c, options.seed) for c in scenario.cameras}
+    infos = {c.name: c.to_camera_info_fields() for c in scenario.cameras}
+    names = list(body.coordinate_names)
+    if phase_all is not None:
+        names.append('gait_phase')
+    bar = Progress(scenario.frames, 'simulate', enabled=progress)
+    with BagWriter(out, storage) as writer:
+        for k, t in enumerate(times):
+            stamp = START_NS + int(round(t * 1e9))
+            rotations, origins = body.forward_kinematics(q_all[k])
+            for cam in scenario.cameras:
+                if k >= drop.get(cam.name, scenario.frames + 1):
+                    continue
+                rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True)
+                pixels = compose_frame(backgrounds[cam.name], rendering, cam, options, k, rng,
+                                       colour=encoding not in ('mono8', 'mono16'))
+                writer.write(f'/{cam.name}/image_raw', stamp,
+                             image_msg(stamp, infos[cam.name]['frame_id'], *convert_encoding(pixels, encoding)))
+                writer.write(f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, infos[cam.name]))
+            positions, velocities = list(q_all[k]), list(qd_all[k])
+            if phase_all is not None:
+                positions.append(float(phase_all[k]))
+                velocities.append(_phase_rate(phase_all, k, scenario.frame_rate))
+            writer.write(TRUTH_JOINTS, stamp, joint_state_msg(stamp, names, positions, velocities))
+            writer.write(TRUTH_POSES, stamp, pose_array_msg(stamp, origins, matrix_to_quat(rotations)))
+            bar.update(k + 1)
+    bar.close()
+
+
+def _phase_rate(phase: np.ndarray, k: int, rate: float) -> float:
+    """Gait phase velocity (cycles/s) from neighbouring frames, unwrapped."""
+    if len(phase) < 2:
+        return 0.0
+    j = min(k + 1, len(phase) - 1)
+    i = j - 1
+    return float(np.mod(phase[j] - phase[i], 1.0) * rate)
+
+
+def convert_encoding(pixels: np.ndarray, encoding: str) -> tuple[np.ndarray, str]:
+    """Convert a uint8 grey (H, W) or BGR (H, W, 3) picture to ``encoding``."""
+    if pixels.ndim == 2:
+        grey = pixels
+        bgr = np.repeat(pixels[..., None], 3, axis=2)
+    else:
+        bgr = pixels
+        grey = (bgr @ np.array([0.114, 0.587, 0.299])).round().clip(0, 255).astype(np.uint8)
+    if encoding == 'mono8':
+        return grey, encoding
+    if encoding == 'mono16':
+        return grey.astype(np.uint16) * 257, encoding
+    if encoding == 'bgr8':
+        return bgr, encoding
+    if encoding == 'rgb8':
+        return bgr[..., ::-1], encoding
+    alpha = np.full(bgr.shape[:2] + (1,), 255, np.uint8)
+    if encoding == 'bgra8':
+        return np.concatenate([bgr, alpha], axis=2), encoding
+    if encoding == 'rgba8':
+        return np.concatenate([bgr[..., ::-1], alpha], axis=2), encoding
+    raise ValueError(f'unknown encoding {encoding!r}')
