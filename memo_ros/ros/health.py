@@ -1,0 +1,78 @@
+"""Per-node bookkeeping of frames in, processed and dropped (with reasons), published on /diagnostics.
+
+Every frame a node does not process is counted under a reason and logged with
+a throttled one-line warning, so nothing is dropped silently.
+"""
+from __future__ import annotations
+
+from collections import Counter
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+
+LOG_THROTTLE_S = 2.0
+
+
+class NodeHealth:
+    """Counters, the last problem, and a periodic DiagnosticArray for one node."""
+
+    def __init__(self, node: Node, name: str, hardware_id: str = '', period: float = 1.0) -> None:
+        self._node = node
+        self._name = name
+        self._hardware_id = hardware_id
+        self.counters: Counter[str] = Counter()
+        self.dropped: Counter[str] = Counter()
+        self.values: dict[str, str] = {}
+        self._problem = ''
+        self._level = DiagnosticStatus.OK
+        self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._timer = node.create_timer(period, self.publish)
+
+    def count(self, key: str, n: int = 1) -> None:
+        """Add ``n`` to counter ``key`` (frames_in, processed, ...)."""
+        self.counters[key] += n
+
+    def drop(self, reason: str, message: str) -> None:
+        """Count a frame not processed under ``reason`` and log ``message`` (throttled per reason)."""
+        self.dropped[reason] += 1
+        self._problem = f'{reason}: {message}'
+        self._level = DiagnosticStatus.WARN
+        self._node.get_logger().warning(f'{message} [dropped: {reason}, {self.dropped[reason]} so far]',
+                                        throttle_duration_sec=LOG_THROTTLE_S)
+
+    def note(self, reason: str, message: str) -> None:
+        """Count an event that is not a drop (a reset, a warm-up) and log it throttled."""
+        self.counters[reason] += 1
+        self._problem = f'{reason}: {message}'
+        self._node.get_logger().info(message, throttle_duration_sec=LOG_THROTTLE_S)
+
+    def ok(self) -> None:
+        """A frame went through: clear the warning level (the last problem stays in the values)."""
+        self._level = DiagnosticStatus.OK
+
+    def set(self, key: str, value) -> None:
+        """Publish ``key: value`` with the next diagnostics."""
+        self.values[key] = str(value)
+
+    def status(self) -> DiagnosticStatus:
+        """The node's current DiagnosticStatus."""
+        status = DiagnosticStatus()
+        status.level = self._level
+        status.name = self._name
+        status.hardware_id = self._hardware_id
+        status.message = 'OK' if self._level == DiagnosticStatus.OK else self._problem
+        values = [KeyValue(key=k, value=str(v)) for k, v in sorted(self.counters.items())]
+        values += [KeyValue(key=f'dropped.{k}', value=str(v)) for k, v in sorted(self.dropped.items())]
+        values.append(KeyValue(key='dropped.total', value=str(sum(self.dropped.values()))))
+        values += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]
+        if self._problem:
+            values.append(KeyValue(key='last_problem', value=self._problem))
+        status.values = values
+        return status
+
+    def publish(self) -> None:
+        """Send the status on /diagnostics."""
+        msg = DiagnosticArray()
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        msg.status = [self.status()]
+        self._publisher.publish(msg)
