@@ -180,7 +180,7 @@ class Body:
             'name': self.name,
             'parts': {p: {'length': float(s.length), 'semi_axes': [float(s.a), float(s.b)]}
                       for p, s in ((p, self.shapes[p]) for p in PART_NAMES)},
-            'joints': {j: [round(float(v), 6) for v in self.joint_offsets[j]] for j in JOINT_NAMES},
+            'joints': {j: [float(v) for v in self.joint_offsets[j]] for j in JOINT_NAMES},
         }
 
     @classmethod

@@ -25,11 +25,13 @@ PART_ALBEDO = {
     'thigh_l': 75.0, 'shank_l': 85.0, 'foot_l': 35.0,
     'thigh_r': 75.0, 'shank_r': 85.0, 'foot_r': 35.0,
 }
-# colour tint per part for colour encodings (B, G, R multipliers)
-PART_TINT = {
+# colour tint per part for colour encodings (B, G, R multipliers), normalised below to unit luma
+# so that a colour stream converts to the same grey as the mono8 one
+_RAW_TINT = {
     'torso': (1.25, 0.85, 0.75), 'upper_arm_l': (1.25, 0.85, 0.75), 'upper_arm_r': (1.25, 0.85, 0.75),
     'thigh_l': (1.3, 1.0, 0.8), 'shank_l': (1.3, 1.0, 0.8), 'thigh_r': (1.3, 1.0, 0.8), 'shank_r': (1.3, 1.0, 0.8),
 }
+PART_TINT = {part: tuple(np.array(t) / (np.array(t) @ (0.114, 0.587, 0.299))) for part, t in _RAW_TINT.items()}
 LIGHT_DIRECTION = np.array([0.45, 0.35, 0.82])   # towards the light, world frame
 
 

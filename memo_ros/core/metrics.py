@@ -31,8 +31,10 @@ def pose_errors(true_origins: np.ndarray, true_rotations: np.ndarray, est_origin
                 est_rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Joint-centre errors (mm) and axis-direction errors (deg), arrays (..., P)."""
     joint_mm = 1000.0 * np.linalg.norm(est_origins - true_origins, axis=-1)
-    cos = np.clip(np.sum(est_rotations[..., :, 2] * true_rotations[..., :, 2], axis=-1), -1.0, 1.0)
-    return joint_mm, np.degrees(np.arccos(cos))
+    est_axis, true_axis = est_rotations[..., :, 2], true_rotations[..., :, 2]
+    sin = np.linalg.norm(np.cross(est_axis, true_axis), axis=-1)
+    cos = np.sum(est_axis * true_axis, axis=-1)
+    return joint_mm, np.degrees(np.arctan2(sin, cos))   # exact 0 for equal axes, unlike arccos
 
 
 def phase_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -56,4 +56,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    # run the importable module's main, so CliError raised by sub-commands is the class caught here
+    from memo_ros.tools.cli import main as _main
+    sys.exit(_main())

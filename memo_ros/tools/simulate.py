@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'bag        {result.bag}  ({result.frames} frames x {len(result.cameras)} cameras: '
           f'{", ".join(result.cameras)})')
     print(f'studio     {result.studio}')
-    print(f'topics     ' + ', '.join([f'/{c}/image_raw, /{c}/camera_info' for c in result.cameras]
+    print('topics     ' + ', '.join([f'/{c}/image_raw, /{c}/camera_info' for c in result.cameras]
                                      + [TRUTH_JOINTS, TRUTH_POSES]))
     print(f'time       {result.seconds:.1f} s ({result.frames / max(result.seconds, 1e-9):.1f} frames/s)')
     return 0
