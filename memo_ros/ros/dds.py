@@ -1,0 +1,114 @@
+"""DDS plumbing shared by the tools: a ROS session, QoS by name or adapted to publishers, topic discovery, stop signals.
+
+Tools own their ``rclpy.Context`` (never the global one) and install their own
+SIGINT/SIGTERM handlers, so a signal only asks the tool to stop and the tool
+can close bags and shut down executor, node and context in that order.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from contextlib import contextmanager
+from typing import Callable, Iterator
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE, 'best_effort': ReliabilityPolicy.BEST_EFFORT}
+DURABILITY = {'volatile': DurabilityPolicy.VOLATILE, 'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+def qos_profile(reliability: str = 'reliable', depth: int = 10, durability: str = 'volatile') -> QoSProfile:
+    """A keep-last QoS profile from the names used on the command line."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=RELIABILITY[reliability], durability=DURABILITY[durability])
+
+
+def adapted_qos(node: Node, topic: str, depth: int, reliability: str = 'auto',
+                durability: str = 'auto') -> QoSProfile:
+    """A subscription profile that matches every current publisher of ``topic`` ('auto' adapts like rosbag2).
+
+    Reliable only when all publishers are reliable, transient-local only when all
+    are, so a subscriber neither misses best-effort publishers nor latched messages.
+    """
+    offered = [info.qos_profile for info in node.get_publishers_info_by_topic(topic)]
+    if reliability == 'auto':
+        reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+        reliability = 'reliable' if reliable else 'best_effort'
+    if durability == 'auto':
+        latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+        durability = 'transient_local' if latched else 'volatile'
+    return qos_profile(reliability, depth, durability)
+
+
+def absolute_topic(name: str) -> str:
+    """A topic name resolved against the root namespace ('cam/image_raw' -> '/cam/image_raw')."""
+    name = name.strip()
+    return name if name.startswith('/') else '/' + name
+
+
+def topic_types(node: Node) -> dict[str, list[str]]:
+    """Topic name -> message types currently seen in the graph."""
+    return dict(node.get_topic_names_and_types())
+
+
+def wait_for_topic_type(node: Node, topic: str, timeout: float | None,
+                        stop: threading.Event | None = None, period: float = 0.1) -> str | None:
+    """The type of ``topic`` once a publisher or subscriber announces it (None on timeout or stop)."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while stop is None or not stop.is_set():
+        types = topic_types(node).get(topic)
+        if types:
+            return types[0]
+        if deadline is not None and time.monotonic() >= deadline:
+            return None
+        if stop is not None:
+            stop.wait(period)
+        else:
+            time.sleep(period)
+    return None
+
+
+@contextmanager
+def ros_session(node_name: str, domain_id: int | None = None) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
+    """A node and its executor on a private context; shut down executor, node, context on exit."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    node = executor = None
+    try:
+        node = Node(node_name, context=context, start_parameter_services=False, enable_rosout=False)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        yield node, executor
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        context.try_shutdown()
+
+
+@contextmanager
+def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threading.Event]:
+    """An event that SIGINT and SIGTERM set (instead of raising), so loops finish cleanly; handlers restored on exit."""
+    stop = threading.Event()
+
+    def handler(signum, frame) -> None:
+        stop.set()
+        if on_stop is not None:
+            on_stop()
+
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)

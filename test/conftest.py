@@ -1,0 +1,68 @@
+"""Shared fixtures: an isolated DDS environment per test and a runner for `memo-ros` in subprocesses."""
+from __future__ import annotations
+
+import itertools
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+_serial = itertools.count()
+
+
+def next_domain_id() -> int:
+    """A ROS_DOMAIN_ID in 1..100, different for each test of a run and offset by the pid across runs."""
+    return 1 + (os.getpid() + next(_serial)) % 100
+
+
+class RosEnv(dict):
+    """Environment for DDS subprocesses (a dict), with helpers that run `memo-ros` in it and clean up."""
+
+    def __init__(self, domain_id: int) -> None:
+        super().__init__(os.environ)
+        self.domain_id = domain_id
+        self['ROS_DOMAIN_ID'] = str(domain_id)
+        self['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+        self['PYTHONPATH'] = os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p])
+        self['PYTHONUNBUFFERED'] = '1'
+        self.processes: list[subprocess.Popen] = []
+
+    def command(self, *args) -> list[str]:
+        return [sys.executable, '-m', 'memo_ros.tools.cli', *map(str, args)]
+
+    def start(self, *args) -> subprocess.Popen:
+        """Start `memo-ros ARGS` in the background (stdout and stderr captured as text)."""
+        process = subprocess.Popen(self.command(*args), env=self, cwd=ROOT, text=True,
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.processes.append(process)
+        return process
+
+    def run(self, *args, timeout: float = 30.0) -> subprocess.CompletedProcess:
+        """Run `memo-ros ARGS` to completion."""
+        process = self.start(*args)
+        try:
+            out, err = process.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            out, err = process.communicate()
+            pytest.fail(f'memo-ros {" ".join(map(str, args))} did not finish in {timeout} s:\n{err}')
+        return subprocess.CompletedProcess(process.args, process.returncode, out, err)
+
+    def kill_all(self) -> None:
+        for process in self.processes:
+            if process.poll() is None:
+                process.kill()
+            process.communicate()
+
+
+@pytest.fixture
+def ros_env(monkeypatch) -> RosEnv:
+    """A fresh DDS domain on localhost, for this process (in-test nodes) and for subprocesses."""
+    env = RosEnv(next_domain_id())
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(env.domain_id))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    yield env
+    env.kill_all()
