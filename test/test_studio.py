@@ -57,7 +57,7 @@ def test_errors_name_the_problem(tmp_path):
         Studio.load(bad)
 
 
-def test_rcl_accepts_the_studio_as_a_params_file(tmp_path):
+def test_rcl_accepts_the_studio_as_a_params_file(tmp_path, ros_env):
     rclpy = pytest.importorskip('rclpy')
     from rclpy.node import Node
     studio = load_studio('studio_orthogonal')
@@ -65,7 +65,7 @@ def test_rcl_accepts_the_studio_as_a_params_file(tmp_path):
     path = tmp_path / 'studio.yaml'
     studio.save(path)
     ctx = rclpy.Context()
-    rclpy.init(args=['--ros-args', '--params-file', str(path)], context=ctx, domain_id=0)
+    rclpy.init(args=['--ros-args', '--params-file', str(path)], context=ctx, domain_id=ros_env.domain_id)
     try:
         node = Node('contour_node', context=ctx, automatically_declare_parameters_from_overrides=True,
                     enable_rosout=False)
