@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     except CliError as exc:
         print(f'memo-ros {args.command}: error: {exc}', file=sys.stderr)
         return 2
-    except (OSError, ValueError, KeyError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - a tool run ends in one line, never a traceback
         if os.environ.get('MEMO_ROS_DEBUG'):
             raise
         print(f'memo-ros {args.command}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
