@@ -46,12 +46,12 @@ def main(argv: list[str] | None = None) -> int:
         print('memo-ros: interrupted', file=sys.stderr)
         return 130
     except CliError as exc:
-        print(f'memo-ros {args.command}: error: {exc}', file=sys.stderr)
+        print(f'memo-ros {args.command}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 - a tool run ends in one line, never a traceback
         if os.environ.get('MEMO_ROS_DEBUG'):
             raise
-        print(f'memo-ros {args.command}: error: {type(exc).__name__}: {exc}', file=sys.stderr)
+        print(f'memo-ros {args.command}: error: {type(exc).__name__}: {" ".join(str(exc).split())}', file=sys.stderr)
         return 1
 
 
