@@ -140,9 +140,10 @@ def _write_bag(scenario: Scenario, body: Body, out: Path, options: ImagingOption
                 rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True)
                 pixels = compose_frame(backgrounds[cam.name], rendering, cam, options, k, rng,
                                        colour=encoding not in ('mono8', 'mono16'))
+                # camera_info first, as a driver's calibration precedes the pixels that need it
+                writer.write(f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, infos[cam.name]))
                 writer.write(f'/{cam.name}/image_raw', stamp,
                              image_msg(stamp, infos[cam.name]['frame_id'], *convert_encoding(pixels, encoding)))
-                writer.write(f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, infos[cam.name]))
             positions, velocities = list(q_all[k]), list(qd_all[k])
             if phase_all is not None:
                 positions.append(float(phase_all[k]))
