@@ -1,0 +1,332 @@
+"""Person segmentation: raw change masks, Rohr's binary cleanup, regions with rectangle and outline.
+
+Two segmenters give a raw boolean mask of "person" pixels:
+
+- :class:`ChangeSegmenter`: Rohr §4.1, eq. (1) against the previous frame
+  (:class:`~memo_ros.core.change_detection.ChangeDetector`).  It sees what
+  moves: the moving person and the background they just uncovered.
+- :class:`BackgroundSegmenter`: a static background learnt as the per-pixel
+  median of the first N frames, then eq. (1) between each frame and that
+  background.  It sees a person who stands still, as long as every pixel shows
+  the background in more than half of the learning frames (an empty studio at
+  start, or a person walking through).
+
+Both feed the same :func:`cleanup` (Rohr §4.1: "detected image points having a
+small number of neighbors in a 3x3 window are deleted and nondetected points
+with a large number of neighbors are marked", repeated until stable, then the
+remaining holes filled) and :func:`select_regions` (enclosing rectangle and
+outline of each kept region, Rohr Figs. 10-11).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from memo_ros.core.change_detection import NOISE_FACTOR, ChangeDetector, ChangeResult, Workspace, detect_changes
+
+SEGMENTERS = ('background', 'change')
+_EMPTY_OUTLINE = np.zeros((0, 2), np.int32)
+
+
+# ------------------------------------------------------------------ cleanup
+def cleanup(mask: np.ndarray, delete_below: int = 3, fill_above: int = 5, max_iterations: int = 10,
+            fill_holes: bool = True) -> np.ndarray:
+    """Rohr's binary cleanup: delete sparse points, mark dense gaps, repeat until stable, fill holes (bool)."""
+    # Neighbours are the 8 pixels of the 3x3 window (outside the image counts as unflagged).  Every
+    # iteration updates all pixels at once from the previous iteration's counts.  A flag can only
+    # spread one pixel per iteration, so after the first (full-frame) iteration the work is done in
+    # the bounding box of the surviving flags grown by the remaining iteration count.
+    m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    height, width = m.shape
+    if not m.any():
+        return np.zeros((height, width), bool)
+    out = np.zeros((height, width), np.uint8)
+    x, y, w, h = 0, 0, width, height
+    current = m
+    for iteration in range(max(int(max_iterations), 0)):
+        updated = _cleanup_step(current, delete_below, fill_above)
+        stable = np.array_equal(updated, current)
+        current = updated
+        if stable or not current.any():
+            break
+        if iteration == 0:                 # shrink to the flags' box: they grow <= 1 px per iteration
+            bx, by, bw, bh = cv2.boundingRect(current)
+            grow = max(int(max_iterations) - 1, 0) + 1
+            x0, y0 = max(x + bx - grow, 0), max(y + by - grow, 0)
+            x1, y1 = min(x + bx + bw + grow, width), min(y + by + bh + grow, height)
+            current = np.ascontiguousarray(current[y0 - y:y1 - y, x0 - x:x1 - x])
+            x, y, w, h = x0, y0, x1 - x0, y1 - y0
+    # pixels at the image edge see "outside" as unflagged only when the ROI touches that edge;
+    # elsewhere the ROI's zero surround is the true neighbourhood, so the ROI result is exact
+    if fill_holes:
+        current = _fill_holes(current)
+    out[y:y + h, x:x + w] = current
+    return out.view(bool)
+
+
+def _cleanup_step(m: np.ndarray, delete_below: int, fill_above: int) -> np.ndarray:
+    """One parallel update: keep flagged pixels with >= k1 flagged neighbours, add unflagged with > k2."""
+    total = cv2.boxFilter(m, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)   # 3x3 sum incl. self
+    neighbours = cv2.subtract(total, m)
+    keep = cv2.bitwise_and(m, (neighbours >= delete_below).view(np.uint8))
+    add = (neighbours > fill_above).view(np.uint8)
+    return cv2.bitwise_or(keep, add)
+
+
+def _fill_holes(m: np.ndarray) -> np.ndarray:
+    """Mark unflagged regions not connected to the border of ``m`` (0/1 uint8 in, 0/1 uint8 out)."""
+    padded = cv2.copyMakeBorder(m, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    cv2.floodFill(padded, None, (0, 0), 2)             # the outside, via the zero frame: 2
+    return (padded[1:-1, 1:-1] != 2).view(np.uint8)   # flags (1) and holes (0) -> 1
+
+
+# ------------------------------------------------------------------ regions
+@dataclass
+class Region:
+    """One kept connected region: its pixel count, enclosing rectangle and outer outline."""
+
+    area: int
+    box: tuple[int, int, int, int]      # x, y, w, h in pixels (Rohr's enclosing rectangle)
+    outline: np.ndarray                 # (N, 2) int32 pixel coordinates (x, y), cv2.findContours order
+
+
+def select_regions(mask: np.ndarray, min_area: int = 200, keep: str = 'largest') -> tuple[np.ndarray, list[Region]]:
+    """Keep the largest (or every) 8-connected region of at least ``min_area`` pixels: kept mask, regions."""
+    if keep not in ('largest', 'all'):
+        raise ValueError(f"keep must be 'largest' or 'all', got {keep!r}")
+    m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    kept = np.zeros(m.shape, bool)
+    if not m.any():
+        return kept, []
+    bx, by, bw, bh = cv2.boundingRect(m)            # label only the flags' box
+    roi = m[by:by + bh, bx:bx + bw]
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(roi, connectivity=8, ltype=cv2.CV_32S)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    candidates = np.flatnonzero(areas >= min_area) + 1
+    if candidates.size == 0:
+        return kept, []
+    if keep == 'largest':
+        candidates = candidates[[int(np.argmax(areas[candidates - 1]))]]
+    else:
+        candidates = candidates[np.argsort(-areas[candidates - 1], kind='stable')]
+    regions = []
+    for label in candidates:
+        x, y, w, h = (int(v) for v in stats[label, :4])
+        region = (labels[y:y + h, x:x + w] == label)
+        kept[by + y:by + y + h, bx + x:bx + x + w] |= region
+        contours, _ = cv2.findContours(region.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE,
+                                       offset=(bx + x, by + y))
+        outline = max(contours, key=len).reshape(-1, 2) if contours else _EMPTY_OUTLINE
+        regions.append(Region(int(stats[label, cv2.CC_STAT_AREA]), (bx + x, by + y, w, h), outline))
+    return kept, regions
+
+
+def union_box(regions: list[Region]) -> tuple[int, int, int, int] | None:
+    """The rectangle (x, y, w, h) enclosing every region, None without regions."""
+    if not regions:
+        return None
+    boxes = np.array([r.box for r in regions])
+    x0, y0 = boxes[:, 0].min(), boxes[:, 1].min()
+    x1, y1 = (boxes[:, 0] + boxes[:, 2]).max(), (boxes[:, 1] + boxes[:, 3]).max()
+    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+
+
+# -------------------------------------------------------------- segmenters
+class ChangeSegmenter:
+    """Raw person mask from Rohr's change detection against the previous frame (eq. 1, j = k - 1)."""
+
+    def __init__(self, threshold: float = 12.0, noise_factor: float = NOISE_FACTOR) -> None:
+        """``threshold``: T of eq. (1), grey levels, raised to ``noise_factor`` noise sigmas (0: fixed T)."""
+        self.detector = ChangeDetector(threshold, noise_factor)
+
+    @property
+    def warming_up(self) -> bool:
+        """True until a previous frame exists."""
+        return self.detector.previous is None
+
+    def reset(self) -> None:
+        """Forget the previous frame."""
+        self.detector.reset()
+
+    def segment(self, grey: np.ndarray) -> ChangeResult | None:
+        """Eq. (1) against the previous frame (raw mask, difference, noise), None without a previous frame."""
+        return self.detector.detect(grey)
+
+
+class BackgroundSegmenter:
+    """Raw person mask: eq. (1) between the frame and a static background (median of the first N frames)."""
+
+    def __init__(self, threshold: float = 4.0, learn_frames: int = 10, noise_factor: float = NOISE_FACTOR,
+                 compensate_gain: bool = True) -> None:
+        """T of eq. (1) against the background; N learning frames; noise floor; global gain compensation."""
+        if learn_frames < 1:
+            raise ValueError(f'learn_frames must be at least 1, got {learn_frames}')
+        self.threshold = float(threshold)
+        self.learn_frames = int(learn_frames)
+        self.noise_factor = float(noise_factor)
+        self.compensate_gain = bool(compensate_gain)
+        self.workspace = Workspace()
+        self.gain = 1.0
+        self.reset()
+
+    @property
+    def warming_up(self) -> bool:
+        """True while the background is still being learnt."""
+        return self.background is None
+
+    def reset(self) -> None:
+        """Forget the background and learn it again from the next N frames."""
+        self.background: np.ndarray | None = None
+        self._scaled: np.ndarray | None = None
+        self._learning: np.ndarray | None = None
+        self._count = 0
+
+    def set_background(self, background: np.ndarray) -> None:
+        """Use a given background (e.g. a picture of the empty studio) instead of learning one."""
+        self.background = np.ascontiguousarray(background, np.uint8).copy()
+        self._scaled = None
+        self._learning, self._count = None, 0
+
+    def _reference(self, grey: np.ndarray) -> np.ndarray:
+        """The background, scaled by the frame's global gain (slow lighting changes) when that is on."""
+        if not self.compensate_gain:
+            return self.background
+        sample_bg = self.background[::8, ::8].astype(np.float32)
+        sample = grey[::8, ::8].astype(np.float32)
+        valid = sample_bg > 16.0
+        gain = float(np.median(sample[valid] / sample_bg[valid])) if valid.any() else 1.0
+        self.gain = gain
+        if abs(gain - 1.0) < 0.005:                   # below half a grey level at mid grey: no rescaling
+            return self.background
+        if self._scaled is None or self._scaled.shape != grey.shape:
+            self._scaled = np.empty(grey.shape, np.float32)
+        return cv2.multiply(self.background, gain, dst=self._scaled, dtype=cv2.CV_32F)
+
+    def segment(self, grey: np.ndarray) -> ChangeResult | None:
+        """Eq. (1) against the background (raw mask, difference, noise), None while learning."""
+        grey = np.asarray(grey)
+        if self.background is not None and self.background.shape == grey.shape:
+            reference = self._reference(grey)
+            frame = grey if reference.dtype == grey.dtype else grey.astype(np.float32)
+            return detect_changes(frame, reference, self.threshold, self.noise_factor, self.workspace)
+        if self._learning is None or self._learning.shape[1:] != grey.shape:
+            self._learning = np.empty((self.learn_frames,) + grey.shape, np.uint8)
+            self._count = 0
+        self._learning[self._count] = grey
+        self._count += 1
+        if self._count == self.learn_frames:
+            # per-pixel median: a person covering a pixel in fewer than half the frames is voted out
+            self.background = np.median(self._learning, axis=0).round().astype(np.uint8)
+            self._learning = None
+        return None
+
+
+def refine_boundary(raw: np.ndarray, filled: np.ndarray, difference: np.ndarray, pixel_threshold: float,
+                    depth: int = 2) -> np.ndarray:
+    """Undo eq. (1)'s 2 px spread: keep the filled core, and near its edge only pixels whose own |d| is large."""
+    # The 5x5 fit flags pixels up to 2 px outside a strong step edge; the core (filled mask eroded by
+    # ``depth``) lies inside, the band around it is decided per pixel: raw flag and |g_k - g_j| > t.
+    size = 2 * depth + 1
+    core = cv2.erode(filled.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)),
+                     borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    strong = cv2.compare(cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_GT)   # 0 / 255
+    band = cv2.bitwise_and(cv2.bitwise_and(raw.view(np.uint8), filled.view(np.uint8)), strong)   # 0 / 1
+    return cv2.bitwise_or(core, band).view(bool)
+
+
+# -------------------------------------------------------------------- facade
+@dataclass
+class Segmentation:
+    """A frame's segmentation: raw and cleaned masks, kept regions and their enclosing rectangle."""
+
+    raw: np.ndarray                      # (H, W) bool: what the segmenter flagged
+    mask: np.ndarray                     # (H, W) bool: cleaned, only the kept regions
+    regions: list[Region] = field(default_factory=list)
+    box: tuple[int, int, int, int] | None = None     # x, y, w, h enclosing all kept regions
+    warming_up: bool = False             # no segmentation yet (learning the background / no previous frame)
+
+    @classmethod
+    def empty(cls, shape: tuple[int, int], warming_up: bool) -> 'Segmentation':
+        """Nothing found in an image of ``shape``."""
+        nothing = np.zeros(shape, bool)
+        return cls(nothing, nothing, [], None, warming_up)
+
+
+@dataclass
+class SegmenterSettings:
+    """Parameters of :class:`Segmenter` (the contour node's parameters of the same names)."""
+
+    segmenter: str = 'background'        # 'background' or 'change'
+    threshold: float = 4.0               # T of eq. (1), grey levels (before the noise floor)
+    background_frames: int = 10          # N frames learnt by the background segmenter
+    delete_below: int = 3                # cleanup k1
+    fill_above: int = 5                  # cleanup k2
+    max_iterations: int = 10             # cleanup repetitions (upper bound)
+    fill_holes: bool = True
+    min_area: int = 200                  # smallest kept region, pixels
+    keep: str = 'largest'                # 'largest' or 'all'
+    noise_factor: float = NOISE_FACTOR   # T is raised to this many sigmas of the measured noise (0: fixed T)
+    refine: bool = True                  # per-pixel boundary refinement (undoes the 5x5 fit's spread)
+    pixel_factor: float = 2.5            # boundary pixels need |g_k - g_j| > max(pixel_factor sigma, 2)
+    compensate_gain: bool = True         # background: follow slow global lighting changes
+
+
+class Segmenter:
+    """Raw mask by the named segmenter, then cleanup, boundary refinement and region selection."""
+
+    def __init__(self, settings: SegmenterSettings | None = None, **overrides) -> None:
+        """Settings as a :class:`SegmenterSettings` and/or keyword overrides of its fields."""
+        settings = replace(settings or SegmenterSettings(), **overrides)
+        if settings.segmenter not in SEGMENTERS:
+            raise ValueError(f"unknown segmenter {settings.segmenter!r}; known: {', '.join(SEGMENTERS)}")
+        if settings.keep not in ('largest', 'all'):
+            raise ValueError(f"keep must be 'largest' or 'all', got {settings.keep!r}")
+        self.settings = settings
+        if settings.segmenter == 'change':
+            self.method: ChangeSegmenter | BackgroundSegmenter = ChangeSegmenter(
+                settings.threshold, settings.noise_factor)
+        else:
+            self.method = BackgroundSegmenter(settings.threshold, settings.background_frames,
+                                              settings.noise_factor, settings.compensate_gain)
+        self.last_change: ChangeResult | None = None
+
+    def reset(self) -> None:
+        """Forget the frame history (previous frame or learnt background)."""
+        self.method.reset()
+
+    def raw(self, grey: np.ndarray) -> ChangeResult | None:
+        """The segmenter's eq. (1) result (raw mask, difference, noise), None while warming up."""
+        self.last_change = self.method.segment(grey)
+        return self.last_change
+
+    def refine(self, change: ChangeResult) -> Segmentation:
+        """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) result."""
+        s = self.settings
+        raw = change.mask
+        cleaned = cleanup(raw, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
+        if s.refine and cleaned.any():
+            pixel_threshold = max(s.pixel_factor * change.sigma, 2.0)
+            x, y, w, h = _grown_box(cleaned, 3)
+            window = np.s_[y:y + h, x:x + w]
+            sharp = refine_boundary(raw[window], cleaned[window], change.difference[window], pixel_threshold)
+            cleaned = np.zeros_like(cleaned)
+            cleaned[window] = cleanup(sharp, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
+        mask, regions = select_regions(cleaned, s.min_area, s.keep)
+        return Segmentation(raw.copy(), mask, regions, union_box(regions), False)
+
+    def process(self, grey: np.ndarray) -> Segmentation:
+        """Segment one grey frame (uint8 (H, W))."""
+        change = self.raw(grey)
+        if change is None:
+            return Segmentation.empty(np.shape(grey)[:2], True)
+        return self.refine(change)
+
+
+def _grown_box(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Bounding box (x, y, w, h) of a mask's flags grown by ``margin`` and clipped to the image."""
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    height, width = mask.shape
+    x0, y0 = max(x - margin, 0), max(y - margin, 0)
+    return x0, y0, min(x + w + margin, width) - x0, min(y + h + margin, height) - y0
