@@ -45,6 +45,7 @@ setup(
     entry_points={
         'console_scripts': [
             'memo-ros = memo_ros.tools.cli:main',
+            'contour_node = memo_ros.nodes.contour_node:main',
         ],
     },
 )

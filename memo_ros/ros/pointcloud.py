@@ -12,6 +12,8 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
+from memo_ros.core.contours import CONTOUR_DTYPE  # noqa: F401 - DESIGN.md's contour table, re-exported
+
 # PointField datatype -> numpy type code (without byte order)
 FIELD_TYPES = {
     PointField.INT8: 'i1',
@@ -24,8 +26,6 @@ FIELD_TYPES = {
     PointField.FLOAT64: 'f8',
 }
 NUMPY_TO_FIELD = {np.dtype(code).newbyteorder('<'): datatype for datatype, code in FIELD_TYPES.items()}
-
-CONTOUR_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('tx', '<f4'), ('ty', '<f4'), ('contour', '<u4')])
 
 
 def dtype_from_fields(fields, point_step: int, big_endian: bool = False) -> np.dtype:

@@ -19,7 +19,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-SUITES = ('foundation',)
+SUITES = ('foundation', 'contours')
 SIM_SCENARIO = 'studio-arm'
 SIM_FRAMES = 30
 SIM_SIZE = (640, 480)
@@ -33,7 +33,8 @@ SIM_STAGES = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('suite', choices=SUITES, help='what to measure: foundation = renderer and simulator')
+    parser.add_argument('suite', choices=SUITES, help='what to measure: foundation = renderer and simulator; '
+                        'contours = the contour pipeline per 640x480 frame, one OpenCV thread')
     parser.add_argument('--repeat', type=int, default=20, help='timed repetitions per renderer case (default 20)')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of the table')
 
@@ -42,6 +43,16 @@ def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
     if args.repeat < 1:
         raise CliError('--repeat must be at least 1')
+    if args.suite == 'contours':
+        from memo_ros.tools.bench_contours import print_contour_benchmark, run_contour_benchmark
+        report = {'command': command_line(args), 'machine': machine(),
+                  **run_contour_benchmark(repeat=args.repeat)}
+        if args.json:
+            print(json.dumps(report))
+        else:
+            print(f"command  {report['command']}")
+            print_contour_benchmark(report)
+        return 0
     report = {'command': command_line(args), 'machine': machine(),
               'renderer': renderer_times(args.repeat), 'simulator': simulator_throughput()}
     if args.json:

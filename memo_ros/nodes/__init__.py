@@ -1,0 +1,1 @@
+"""Thin rclpy nodes wrapping memo_ros.core: parameters, QoS, conversions, diagnostics."""

@@ -1,0 +1,169 @@
+"""contour_node: one camera's person segmentation, occluding contours and edge lines.
+
+Subscribes ``image_raw`` and ``camera_info`` in its namespace and publishes,
+for every accepted frame (header copied from the image): ``contours``
+(PointCloud2: x, y, tx, ty, contour), ``edges`` (PointCloud2: x1, y1, x2, y2,
+magnitude, chain), ``person_box`` (PolygonStamped: the enclosing rectangle's
+four corners in pixels, empty when nobody is seen) and, on request,
+``debug/mask`` (mono8).  The science is memo_ros.core's ContourPipeline.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Point32, PolygonStamped
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from memo_ros.core.contours import ContourPipeline, PipelineSettings
+from memo_ros.core.encodings import ImageFormatError, image_to_array, to_grey8
+from memo_ros.ros.health import NodeHealth
+from memo_ros.ros.params import Param, declare, validator
+from memo_ros.ros.pointcloud import array_to_pointcloud
+
+PARAMS = (
+    Param('segmenter', 'background', 'person segmentation: a static background learnt over the first frames, '
+          "or Rohr's change detection against the previous frame", choices=('background', 'change')),
+    Param('threshold', 4.0, 'threshold T of Rohr eq. 1, grey levels, raised to the frame\'s noise floor '
+          '(about 4 against a background, 12 against the previous frame)', 0.5, 255.0),
+    Param('background_frames', 10, 'frames the background segmenter learns from before it segments', 1, 10000),
+    Param('cleanup_delete_below', 3, 'cleanup: a flagged pixel with fewer flagged 3x3 neighbours is deleted',
+          0, 8),
+    Param('cleanup_fill_above', 5, 'cleanup: an unflagged pixel with more flagged 3x3 neighbours is marked', 0, 8),
+    Param('cleanup_max_iterations', 10, 'cleanup: repetitions until stable (upper bound)', 1, 100),
+    Param('min_region_area', 200, 'smallest kept region, pixels', 1, 10_000_000),
+    Param('keep_regions', 'all', 'keep the largest region or all regions above the minimum area',
+          choices=('largest', 'all')),
+    Param('contour_step', 2.0, 'arc-length step between contour samples, pixels', 0.5, 50.0),
+    Param('smoothing', 2.0, 'smoothing of the closed contour: Gaussian low-pass sigma along the arc, pixels', 0.0, 50.0),
+    Param('edge_low', 30.0, 'edge detector: low hysteresis threshold (gradient magnitude)', 0.0, 2000.0),
+    Param('edge_high', 80.0, 'edge detector: high hysteresis threshold (gradient magnitude)', 0.0, 2000.0),
+    Param('min_edge_length', 6.0, 'shortest edge line kept, pixels', 1.0, 1000.0),
+    Param('publish_debug_mask', False, 'also publish the cleaned person mask on debug/mask (mono8)'),
+    Param('reliable_images', False, 'subscribe images reliably (bag replay) instead of the sensor-data '
+          'profile (best effort)', read_only=True),
+    Param('image_queue_depth', 5, 'image subscription queue depth', 1, 1000, read_only=True),
+)
+
+
+class ContourNode(Node):
+    """Per-camera segmentation and contour extraction."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('contour_node', **kwargs)
+        self.params = declare(self, PARAMS)
+        self.add_on_set_parameters_callback(validator(PARAMS))
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+        camera = self.get_namespace().strip('/') or 'camera'
+        self.health = NodeHealth(self, f'{self.get_fully_qualified_name()}', hardware_id=camera)
+        self.pipeline = ContourPipeline(self._settings())
+        self.camera_info: CameraInfo | None = None
+        self.last_stamp_ns: int | None = None
+        # sensor-data profile (best effort) for live cameras, reliable for bag replay
+        image_qos = QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_images'] else ReliabilityPolicy.BEST_EFFORT,
+            history=HistoryPolicy.KEEP_LAST, depth=self.params['image_queue_depth'])
+        self.create_subscription(Image, 'image_raw', self._on_image, image_qos)
+        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, 10)
+        self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
+        self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
+        self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
+        self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
+
+    def _settings(self) -> PipelineSettings:
+        p = self.params
+        return PipelineSettings(
+            segmenter=p['segmenter'], threshold=p['threshold'], background_frames=p['background_frames'],
+            delete_below=p['cleanup_delete_below'], fill_above=p['cleanup_fill_above'],
+            max_iterations=p['cleanup_max_iterations'], min_area=p['min_region_area'],
+            keep=p['keep_regions'], contour_step=p['contour_step'], smoothing=p['smoothing'],
+            edge_low=p['edge_low'], edge_high=p['edge_high'], min_edge_length=p['min_edge_length'])
+
+    def _on_parameters_set(self, changes) -> None:
+        for change in changes:
+            self.params[change.name] = change.value
+        self.pipeline = ContourPipeline(self._settings())
+        self.health.note('reconfigured', 'parameters changed: pipeline rebuilt')
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        if self.camera_info is None:
+            self.get_logger().info(f'camera_info received: {msg.width}x{msg.height}, {msg.distortion_model}')
+        self.camera_info = msg
+
+    def _on_image(self, msg: Image) -> None:
+        self.health.count('frames_in')
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self.camera_info is None:
+            self.health.drop('no_camera_info', 'image arrived before any camera_info')
+            return
+        if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
+            self.pipeline.reset()
+            self.health.note('time_jump_resets', 'timestamps went backwards (bag loop?): frame history reset')
+        elif self.last_stamp_ns is not None and stamp == self.last_stamp_ns:
+            self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
+            return
+        try:
+            pixels = image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian)
+        except ImageFormatError as exc:
+            self.health.drop(exc.reason, f'bad image: {exc}')
+            return
+        info = self.camera_info
+        if (msg.width, msg.height) != (info.width, info.height):
+            self.health.drop('size_mismatch', f'image {msg.width}x{msg.height} differs from camera_info '
+                                              f'{info.width}x{info.height}')
+            return
+        self.last_stamp_ns = stamp
+        result = self.pipeline.process(to_grey8(pixels, msg.encoding))
+        self._publish(msg, result)
+        self.health.count('processed')
+        if result.warming_up:
+            self.health.count('warming_up')
+        self.health.set('contour_points', len(result.contours))
+        self.health.set('edge_lines', len(result.edges))
+        self.health.set('last_frame_ms', f'{1000 * sum(result.timings.values()):.2f}')
+        self.health.ok()
+
+    def _publish(self, image: Image, result) -> None:
+        self.pub_contours.publish(array_to_pointcloud(result.contours, image.header))
+        self.pub_edges.publish(array_to_pointcloud(result.edges, image.header))
+        box = PolygonStamped()
+        box.header = image.header
+        if result.box is not None:
+            x, y, w, h = (float(v) for v in result.box)
+            box.polygon.points = [Point32(x=px, y=py, z=0.0)
+                                  for px, py in ((x, y), (x + w, y), (x + w, y + h), (x, y + h))]
+        self.pub_box.publish(box)
+        if self.params['publish_debug_mask']:
+            mask = Image()
+            mask.header = image.header
+            mask.height, mask.width = result.mask.shape
+            mask.encoding = 'mono8'
+            mask.step = mask.width
+            mask.data = (result.mask.astype(np.uint8) * 255).tobytes()
+            self.pub_mask.publish(mask)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run memo_ros contour_node``."""
+    rclpy.init(args=args if args is not None else sys.argv)
+    try:
+        node = ContourNode()
+    except ValueError as exc:
+        print(f'contour_node: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,129 @@
+"""contour_node as its own process over real DDS: a bag played in, contours recorded out; bad input survived."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from sensor_msgs.msg import CameraInfo, Image
+
+from memo_ros.ros.pointcloud import pointcloud_to_array
+from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.tools.simulate import simulate
+
+from conftest import ROOT
+
+
+def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
+    args = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{camera}']
+    for p in params:
+        args += ['-p', p]
+    process = subprocess.Popen(args, env=ros_env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT)
+    ros_env.processes.append(process)
+    return process
+
+
+def _wait_for_graph(ros_env, topics, timeout=20.0):
+    """Until the node publishes and the recorder subscribes every topic, as seen from a third participant."""
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=ros_env.domain_id)
+    node = rclpy.create_node('graph_probe', context=ctx)
+    try:
+        deadline = time.monotonic() + timeout
+        while not all(node.count_publishers(t) and node.count_subscribers(t) for t in topics):
+            assert time.monotonic() < deadline, 'contour_node and recorder did not meet'
+            time.sleep(0.2)
+        time.sleep(1.0)   # discovery seen by the probe; give the two peers a moment to match each other
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
+    bag = simulate('street-walk', tmp_path / 'street', frames=12, width=320, height=240).bag
+    node = _start_node(ros_env, 'cam_street', 'reliable_images:=true', 'background_frames:=6')
+    out = tmp_path / 'contours'
+    recorder = ros_env.start('bag', 'record', '-o', out, '/cam_street/contours', '/cam_street/person_box',
+                             '/cam_street/edges', '--idle-timeout', 4, '--duration', 60)
+    _wait_for_graph(ros_env, ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges'])
+    played = ros_env.run('bag', 'play', bag, '--topics', '/cam_street/image_raw', '/cam_street/camera_info',
+                         '--wait-for-subscribers', 1, '--rate', 2, timeout=60)
+    assert played.returncode == 0, played.stderr
+    recorder.communicate(timeout=60)
+    assert node.poll() is None, 'the node must keep running'
+    images = [stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_street/image_raw'])]
+    contours = [m for m in read_messages(out, ['/cam_street/contours'])]
+    # every frame, header copied; only the very first may precede its camera_info on another topic
+    stamps = [stamp_to_ns(m.message.header.stamp) for m in contours]
+    assert stamps in (images, images[1:])
+    tables = {stamp: pointcloud_to_array(m.message) for stamp, m in zip(stamps, contours)}
+    assert all(len(tables[s]) == 0 for s in images[1:5])         # learning the background
+    assert all(len(tables[s]) > 50 for s in images[7:])          # the pedestrian's outline
+    assert np.allclose(np.hypot(tables[images[-1]]['tx'], tables[images[-1]]['ty']), 1.0, atol=1e-4)
+    boxes = [m.message for m in read_messages(out, ['/cam_street/person_box'])]
+    assert len(boxes[-1].polygon.points) == 4
+
+
+def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros_env):
+    node_process = _start_node(ros_env, 'cam_bad', 'background_frames:=1')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=ros_env.domain_id)
+    node = rclpy.create_node('bad_input_feeder', context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    try:
+        image_pub = node.create_publisher(Image, '/cam_bad/image_raw', 10)
+        info_pub = node.create_publisher(CameraInfo, '/cam_bad/camera_info', 10)
+        reports = []
+        node.create_subscription(DiagnosticArray, '/diagnostics', reports.append, 10)
+
+        def image(encoding='mono8', width=32, height=24, step=None, size=None, sec=1):
+            msg = Image(encoding=encoding, width=width, height=height, step=step or width)
+            msg.header.stamp.sec = sec
+            msg.data = bytes(size if size is not None else msg.step * height)
+            return msg
+
+        deadline = time.monotonic() + 15
+        while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+            executor.spin_once(timeout_sec=0.1)
+            assert time.monotonic() < deadline, 'contour_node did not appear'
+        values: dict[str, str] = {}
+
+        def spin_until(keys, publish=None, timeout=15.0):
+            deadline = time.monotonic() + timeout
+            while not set(keys) <= set(values) and time.monotonic() < deadline:
+                if publish is not None:
+                    publish()
+                executor.spin_once(timeout_sec=0.3)
+                for report in reports:
+                    for status in report.status:
+                        if status.hardware_id == 'cam_bad':
+                            values.update({kv.key: kv.value for kv in status.values})
+            assert set(keys) <= set(values), values
+
+        # before any camera_info (repeated until the best-effort subscription has matched)
+        spin_until(['dropped.no_camera_info'], publish=lambda: image_pub.publish(image(sec=1)))
+        info_pub.publish(CameraInfo(width=32, height=24, distortion_model='plumb_bob'))
+        time.sleep(0.5)
+        before = int(values['frames_in'])
+        for msg in [image('yuv422', sec=2), image(step=10, sec=3), image(size=5, sec=4),
+                    image(width=16, step=16, sec=5), image(sec=6), image(sec=7), image(sec=3)]:  # last jumps back
+            image_pub.publish(msg)
+            time.sleep(0.1)
+        spin_until(['dropped.unsupported_encoding', 'dropped.bad_step', 'dropped.bad_data_length',
+                    'dropped.size_mismatch', 'time_jump_resets'])
+        time.sleep(1.2)
+        reports.clear()
+        spin_until(['processed'])
+        assert int(values['processed']) == 3 and int(values['frames_in']) == before + 7
+        assert int(values['dropped.total']) == int(values['frames_in']) - 3
+        assert node_process.poll() is None
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
