@@ -6,11 +6,10 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import CameraInfo, Image
 
+from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.tools.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.simulate import simulate
@@ -30,18 +29,12 @@ def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
 
 def _wait_for_graph(ros_env, topics, timeout=20.0):
     """Until the node publishes and the recorder subscribes every topic, as seen from a third participant."""
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=ros_env.domain_id)
-    node = rclpy.create_node('graph_probe', context=ctx)
-    try:
+    with ros_session('graph_probe', ros_env.domain_id) as (node, _):
         deadline = time.monotonic() + timeout
         while not all(node.count_publishers(t) and node.count_subscribers(t) for t in topics):
             assert time.monotonic() < deadline, 'contour_node and recorder did not meet'
             time.sleep(0.2)
         time.sleep(1.0)   # discovery seen by the probe; give the two peers a moment to match each other
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
 
 
 def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
@@ -71,12 +64,7 @@ def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
 
 def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros_env):
     node_process = _start_node(ros_env, 'cam_bad', 'background_frames:=1')
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=ros_env.domain_id)
-    node = rclpy.create_node('bad_input_feeder', context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
-    try:
+    with ros_session('bad_input_feeder', ros_env.domain_id) as (node, executor):
         image_pub = node.create_publisher(Image, '/cam_bad/image_raw', 10)
         info_pub = node.create_publisher(CameraInfo, '/cam_bad/camera_info', 10)
         reports = []
@@ -123,7 +111,3 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
         assert int(values['processed']) == 3 and int(values['frames_in']) == before + 7
         assert int(values['dropped.total']) == int(values['frames_in']) - 3
         assert node_process.poll() is None
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
