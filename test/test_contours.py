@@ -11,7 +11,7 @@ from memo_ros.core.contours import (CONTOUR_DTYPE, ContourPipeline, PipelineSett
                                     smooth_closed_contour)
 from memo_ros.core.edges import EDGE_DTYPE, edge_lines, edge_lines_in_boxes, merge_boxes
 from memo_ros.core.encodings import image_to_array, to_grey8
-from memo_ros.core.imaging import ImagingOptions, background_image, compose_frame
+from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
 from memo_ros.core.scenarios import make_scenario
 from memo_ros.core.segmentation import select_regions
@@ -153,7 +153,7 @@ def studio_frames(tmp_path_factory):
     """cam -> (grey frames, true silhouettes, empty-studio frames) of a noisy studio-arm."""
     options = ImagingOptions()
     bag = tmp_path_factory.mktemp('arm') / 'bag'
-    simulate('studio-arm', bag, frames=3, width=WIDTH, height=HEIGHT, options=options)
+    result = simulate('studio-arm', bag, frames=3, width=WIDTH, height=HEIGHT, options=options)
     body = load_default_body()
     scenario = make_scenario('studio-arm', body, WIDTH, HEIGHT, 3)
     q, _ = scenario.coordinates(np.arange(3) / scenario.frame_rate)
@@ -166,10 +166,8 @@ def studio_frames(tmp_path_factory):
             frames.append(to_grey8(image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data,
                                                   msg.is_bigendian), msg.encoding))
         truth = [render(cam, R, o, body.semi_axes, body.lengths).label > 0 for R, o in poses]
-        nobody = render(cam, *poses[0], body.semi_axes, body.lengths, parts=np.array([], int), normals=True)
-        rng = np.random.default_rng(7)
-        empty = [compose_frame(background_image(cam, options.seed), nobody, cam, options, k, rng) for k in range(5)]
-        out[cam.name] = (frames, truth, empty)
+        # the simulator's empty studio precedes the subject
+        out[cam.name] = (frames[result.empty_frames:], truth, frames[:result.empty_frames])
     return out
 
 

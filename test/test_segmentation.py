@@ -9,9 +9,9 @@ from memo_ros.core.body import load_default_body
 from memo_ros.core.change_detection import (ChangeDetector, Workspace, change_mask, change_statistic,
                                             change_statistic_reference, design_matrix, detect_changes)
 from memo_ros.core.encodings import image_to_array, to_grey8
-from memo_ros.core.imaging import ImagingOptions, background_image, compose_frame
+from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
-from memo_ros.core.scenarios import make_scenario
+from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, make_scenario
 from memo_ros.core.segmentation import (BackgroundSegmenter, Segmenter, cleanup, select_regions)
 from memo_ros.tools.bagio import read_messages
 from memo_ros.tools.simulate import simulate
@@ -21,7 +21,7 @@ DEFAULT_NOISE = ImagingOptions().noise          # the simulator's default sensor
 STREET_LEARN = 15                               # street: background learnt while the pedestrian walks through
 STREET_FRAMES = STREET_LEARN + 6
 ARM_FRAMES = 4
-EMPTY_FRAMES = 10                               # studio: background learnt from the empty studio
+EMPTY_FRAMES = STUDIO_EMPTY_FRAMES               # studio: background learnt from the simulator's empty studio
 
 
 # --------------------------------------------------------------- eq. (1)
@@ -128,7 +128,7 @@ def _scenario_frames(tmp_path_factory, name: str, frames: int, noise: float) -> 
     """camera -> (frames, true silhouettes, empty-studio frames) of a simulated scenario."""
     options = ImagingOptions(noise=noise)
     bag = tmp_path_factory.mktemp(f'{name}_{noise}') / 'bag'
-    simulate(name, bag, frames=frames, width=WIDTH, height=HEIGHT, options=options)
+    result = simulate(name, bag, frames=frames, width=WIDTH, height=HEIGHT, options=options)
     body = load_default_body()
     scenario = make_scenario(name, body, WIDTH, HEIGHT, frames)
     q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
@@ -137,12 +137,9 @@ def _scenario_frames(tmp_path_factory, name: str, frames: int, noise: float) -> 
     for cam in scenario.cameras:
         images = _grey_frames(bag, f'/{cam.name}/image_raw')
         truth = [render(cam, R, o, body.semi_axes, body.lengths).label > 0 for R, o in poses]
-        # the empty studio seen before the subject steps in (same background, noise and encoder)
-        nobody = render(cam, *poses[0], body.semi_axes, body.lengths, parts=np.array([], int), normals=True)
-        rng = np.random.default_rng(99)
-        background = background_image(cam, options.seed)
-        empty = [compose_frame(background, nobody, cam, options, k, rng) for k in range(EMPTY_FRAMES)]
-        out[cam.name] = (images, truth, empty)
+        # the simulator's empty studio, seen before the subject steps in (none in the street)
+        empty = images[:result.empty_frames]
+        out[cam.name] = (images[result.empty_frames:], truth, empty)
     return out
 
 

@@ -13,7 +13,7 @@ from memo_ros.core.encodings import image_to_array, to_grey8
 from memo_ros.core.imaging import PART_TINT, ImagingOptions, background_image, compose_frame
 from memo_ros.core.render import render
 from memo_ros.core.rotations import quat_to_matrix
-from memo_ros.core.scenarios import SCENARIOS, make_scenario
+from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, SCENARIOS, make_scenario
 from memo_ros.core.studio import Studio
 from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
 from memo_ros.tools.simulate import ENCODINGS, START_NS, TRUTH_JOINTS, TRUTH_POSES, simulate
@@ -68,8 +68,10 @@ def test_topics_types_and_counts(simulated):
         expected[f'/{cam}/image_raw'] = 'sensor_msgs/msg/Image'
         expected[f'/{cam}/camera_info'] = 'sensor_msgs/msg/CameraInfo'
     assert bag_topics(result.bag) == expected
-    assert {topic: len(ms) for topic, ms in by_topic.items()} == {topic: FRAMES for topic in expected}
-    assert sum(len(by_topic[f'/{c}/image_raw']) for c in result.cameras) == FRAMES * len(result.cameras)
+    # the cameras also see the empty scene first; the truth exists only while the subject is there
+    counts = {topic: FRAMES + (0 if topic.startswith('/memo/truth') else result.empty_frames) for topic in expected}
+    assert {topic: len(ms) for topic, ms in by_topic.items()} == counts
+    assert result.empty_frames == (0 if name == 'street-walk' else STUDIO_EMPTY_FRAMES)
 
 
 def test_stamps_increase_at_the_frame_rate(simulated):
@@ -77,9 +79,23 @@ def test_stamps_increase_at_the_frame_rate(simulated):
     rate = Studio.load(result.studio).frame_rate
     for topic, messages in by_topic.items():
         stamps = np.array([stamp_to_ns(m.message.header.stamp) for m in messages], np.int64)
-        assert stamps[0] == START_NS, topic
+        first = START_NS + (round(result.empty_frames * 1e9 / rate) if topic.startswith('/memo/truth') else 0)
+        assert stamps[0] == first, topic
         assert np.all(np.abs(np.diff(stamps) - 1e9 / rate) <= 1.0), topic
         assert np.array_equal(stamps, [m.log_time_ns for m in messages]), topic
+
+
+def test_empty_studio_frames_show_the_background_and_configure_the_contour_node(tmp_path):
+    result = simulate('studio-arm', tmp_path / 'bag', frames=2, width=WIDTH, height=HEIGHT, options=NOISE_FREE,
+                      empty_frames=3)
+    studio = Studio.load(result.studio)
+    params = studio.node_parameters['contour_node']
+    assert params['segmenter'] == 'background' and params['background_frames'] == 3
+    cam = studio.cameras[0]
+    images = grey_images(result.bag, f'/{cam.name}/image_raw')
+    empty = np.clip(background_image(cam, 0) + 0.5, 0, 255).astype(np.uint8)
+    assert all(np.array_equal(image, empty) for image in images[:3])
+    assert not np.array_equal(images[3], empty)
 
 
 def test_camera_info_matches_the_studio_file(simulated):
@@ -152,7 +168,8 @@ def test_the_person_is_in_the_image_exactly_where_the_body_renders(tmp_path):
     rng = np.random.default_rng(0)
     for cam in scenario.cameras:
         background = background_image(cam, NOISE_FREE.seed)
-        for k, (image, message) in enumerate(zip(grey_images(result.bag, f'/{cam.name}/image_raw'), joints)):
+        images = grey_images(result.bag, f'/{cam.name}/image_raw')[result.empty_frames:]
+        for k, (image, message) in enumerate(zip(images, joints)):
             rotations, origins = body.forward_kinematics(truth_q(message, body))
             rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True)
             nobody = render(cam, rotations, origins, body.semi_axes, body.lengths, parts=np.array([], int),

@@ -10,7 +10,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -32,6 +32,8 @@ class Scenario:
     frames: int
     trajectory: Trajectory
     description: str
+    empty_frames: int = 0                 # frames of the empty scene before the subject appears (clean plate)
+    contour_parameters: dict = field(default_factory=dict)   # contour_node parameters suited to the scene
 
     def coordinates(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Generalized coordinates (N, n) and gait phase (N,) or None at ``times`` (s from the start)."""
@@ -113,21 +115,33 @@ def make_scenario(name: str, body: Body, width: int = 640, height: int = 480,
         rate = frame_rate or 30.0
         n = frames or 90
         return Scenario(name, studio_cameras(width, height), rate, n, arm_motion(body, n / rate),
-                        'three orthogonal cameras, right arm moving in 3D with elbow flexion and forearm rotation')
+                        'three orthogonal cameras, right arm moving in 3D with elbow flexion and forearm rotation',
+                        STUDIO_EMPTY_FRAMES, _studio_contours())
     if name == 'studio-walk':
         rate = frame_rate or 30.0
         n = frames or 90
         return Scenario(name, studio_cameras(width, height), rate, n,
                         arc_walk(body, radius=1.0, speed=1.1, start_angle=np.radians(-100.0), cycle_length=1.3),
-                        'three orthogonal cameras, walking on a 1 m circle (turning), legs occluding each other')
+                        'three orthogonal cameras, walking on a 1 m circle (turning), legs occluding each other',
+                        STUDIO_EMPTY_FRAMES, _studio_contours())
     if name == 'street-walk':
         rate = frame_rate or 25.0
         n = frames or 75
         speed = 1.6  # m/s: 1.6 m per cycle at one cycle per second (Rohr §6)
         return Scenario(name, street_camera(width, height), rate, n,
                         line_walk(body, start=-0.5 * speed * n / rate, speed=speed, cycle_length=1.6),
-                        "Rohr's street: one camera 11 m from a path parallel to the image plane")
+                        "Rohr's street: one camera 11 m from a path parallel to the image plane",
+                        0, {'segmenter': 'background', 'threshold': 4.0, 'background_frames': 15,
+                            'keep_regions': 'largest'})
     raise ValueError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
 
 
 SCENARIOS = ('studio-arm', 'studio-walk', 'street-walk')
+# a studio session starts with the empty studio, so the background can be learnt before the subject enters
+STUDIO_EMPTY_FRAMES = 10
+
+
+def _studio_contours() -> dict:
+    """contour_node parameters for the studio: background learnt over the empty frames, every region kept."""
+    return {'segmenter': 'background', 'threshold': 4.0, 'background_frames': STUDIO_EMPTY_FRAMES,
+            'keep_regions': 'all'}

@@ -39,6 +39,7 @@ class SimulationResult:
     frames: int
     cameras: list[str]
     seconds: float
+    empty_frames: int = 0     # frames of the empty scene before the subject, not counted in ``frames``
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,6 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--lighting-change', type=float, default=0.0,
                         help='amplitude of a slow global lighting change (0.1 = +-10%%)')
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--empty-frames', type=int, help='frames of the empty scene before the subject appears '
+                        '(default: 10 in the studio, 0 in the street)')
     parser.add_argument('--encoding', default='mono8', help=f'image encoding: {", ".join(ENCODINGS)}')
     parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     parser.add_argument('--body', type=Path, help='body YAML (default: the shipped average adult)')
@@ -81,29 +84,39 @@ def run(args: argparse.Namespace) -> int:
                       width=args.width, height=args.height,
                       options=ImagingOptions(args.noise, args.blur, args.lighting_change, args.seed),
                       encoding=args.encoding, storage=args.storage, force=args.force,
-                      progress=args.progress or sys.stderr.isatty())
+                      progress=args.progress or sys.stderr.isatty(), empty_frames=args.empty_frames)
     print(f'scenario   {args.scenario}')
-    print(f'bag        {result.bag}  ({result.frames} frames x {len(result.cameras)} cameras: '
+    total = result.frames + result.empty_frames
+    print(f'bag        {result.bag}  ({result.empty_frames} empty + {result.frames} frames '
+          f'x {len(result.cameras)} cameras: '
           f'{", ".join(result.cameras)})')
     print(f'studio     {result.studio}')
     print('topics     ' + ', '.join([f'/{c}/image_raw, /{c}/camera_info' for c in result.cameras]
                                      + [TRUTH_JOINTS, TRUTH_POSES]))
-    print(f'time       {result.seconds:.1f} s ({result.frames / max(result.seconds, 1e-9):.1f} frames/s)')
+    print(f'time       {result.seconds:.1f} s ({total / max(result.seconds, 1e-9):.1f} frames/s)')
     return 0
 
 
 def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: int | None = None,
              frame_rate: float | None = None, width: int = 640, height: int = 480,
              options: ImagingOptions | None = None, encoding: str = 'mono8', storage: str = 'mcap',
-             force: bool = False, progress: bool = False, drop: dict[str, int] | None = None) -> SimulationResult:
+             force: bool = False, progress: bool = False, drop: dict[str, int] | None = None,
+             empty_frames: int | None = None) -> SimulationResult:
     """Simulate ``scenario_name`` into the bag ``out`` and the studio ``out.yaml``.
 
-    ``drop`` maps a camera name to the frame index from which it stops publishing
-    (a camera lost mid-run).
+    ``drop`` maps a camera name to the frame index (counting empty frames) from which
+    it stops publishing (a camera lost mid-run); ``empty_frames`` overrides the
+    scenario's number of empty-scene frames before the subject appears.
     """
     body = body or load_default_body()
     options = options or ImagingOptions()
     scenario = make_scenario(scenario_name, body, width, height, frames, frame_rate)
+    if empty_frames is not None:
+        if empty_frames < 0:
+            raise ValueError('empty_frames must not be negative')
+        scenario.empty_frames = empty_frames
+        if 'background_frames' in scenario.contour_parameters and empty_frames:
+            scenario.contour_parameters['background_frames'] = empty_frames
     out = Path(out)
     studio_path = out.with_name(out.name + '.yaml')
     if out.exists():
@@ -111,11 +124,12 @@ def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: in
             raise FileExistsError(f'{out} exists already (use --force to replace it)')
         shutil.rmtree(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Studio(scenario_name.replace('-', '_'), scenario.cameras, body, scenario.frame_rate).save(studio_path)
+    Studio(scenario_name.replace('-', '_'), scenario.cameras, body, scenario.frame_rate,
+           {'contour_node': scenario.contour_parameters}).save(studio_path)
     start = time.perf_counter()
     _write_bag(scenario, body, out, options, encoding, storage, progress, drop or {})
     return SimulationResult(out, studio_path, scenario.frames, [c.name for c in scenario.cameras],
-                            time.perf_counter() - start)
+                            time.perf_counter() - start, scenario.empty_frames)
 
 
 def _write_bag(scenario: Scenario, body: Body, out: Path, options: ImagingOptions, encoding: str,
@@ -129,27 +143,32 @@ def _write_bag(scenario: Scenario, body: Body, out: Path, options: ImagingOption
     names = list(body.coordinate_names)
     if phase_all is not None:
         names.append('gait_phase')
-    bar = Progress(scenario.frames, 'simulate', enabled=progress)
+    total = scenario.empty_frames + scenario.frames
+    bar = Progress(total, 'simulate', enabled=progress)
+    nobody = np.zeros(0, int)
     with BagWriter(out, storage) as writer:
-        for k, t in enumerate(times):
-            stamp = START_NS + int(round(t * 1e9))
-            rotations, origins = body.forward_kinematics(q_all[k])
+        for k in range(total):
+            stamp = START_NS + int(round(k / scenario.frame_rate * 1e9))
+            b = k - scenario.empty_frames           # body frame index; negative while the scene is empty
+            rotations, origins = body.forward_kinematics(q_all[max(b, 0)])
             for cam in scenario.cameras:
-                if k >= drop.get(cam.name, scenario.frames + 1):
+                if k >= drop.get(cam.name, total + 1):
                     continue
-                rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True)
+                rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True,
+                                   parts=nobody if b < 0 else None)
                 pixels = compose_frame(backgrounds[cam.name], rendering, cam, options, k, rng,
                                        colour=encoding not in ('mono8', 'mono16'))
                 # camera_info first, as a driver's calibration precedes the pixels that need it
                 writer.write(f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, infos[cam.name]))
                 writer.write(f'/{cam.name}/image_raw', stamp,
                              image_msg(stamp, infos[cam.name]['frame_id'], *convert_encoding(pixels, encoding)))
-            positions, velocities = list(q_all[k]), list(qd_all[k])
-            if phase_all is not None:
-                positions.append(float(phase_all[k]))
-                velocities.append(_phase_rate(phase_all, k, scenario.frame_rate))
-            writer.write(TRUTH_JOINTS, stamp, joint_state_msg(stamp, names, positions, velocities))
-            writer.write(TRUTH_POSES, stamp, pose_array_msg(stamp, origins, matrix_to_quat(rotations)))
+            if b >= 0:
+                positions, velocities = list(q_all[b]), list(qd_all[b])
+                if phase_all is not None:
+                    positions.append(float(phase_all[b]))
+                    velocities.append(_phase_rate(phase_all, b, scenario.frame_rate))
+                writer.write(TRUTH_JOINTS, stamp, joint_state_msg(stamp, names, positions, velocities))
+                writer.write(TRUTH_POSES, stamp, pose_array_msg(stamp, origins, matrix_to_quat(rotations)))
             bar.update(k + 1)
     bar.close()
 
