@@ -49,6 +49,17 @@ PARAMS = (
 )
 
 
+def pipeline_settings(params: dict) -> PipelineSettings:
+    """The core pipeline's settings from this node's parameters (defaults for any not given)."""
+    p = {q.name: q.default for q in PARAMS} | dict(params)
+    return PipelineSettings(
+        segmenter=p['segmenter'], threshold=p['threshold'], background_frames=p['background_frames'],
+        delete_below=p['cleanup_delete_below'], fill_above=p['cleanup_fill_above'],
+        max_iterations=p['cleanup_max_iterations'], min_area=p['min_region_area'],
+        keep=p['keep_regions'], contour_step=p['contour_step'], smoothing=p['smoothing'],
+        edge_low=p['edge_low'], edge_high=p['edge_high'], min_edge_length=p['min_edge_length'])
+
+
 class ContourNode(Node):
     """Per-camera segmentation and contour extraction."""
 
@@ -74,13 +85,7 @@ class ContourNode(Node):
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
 
     def _settings(self) -> PipelineSettings:
-        p = self.params
-        return PipelineSettings(
-            segmenter=p['segmenter'], threshold=p['threshold'], background_frames=p['background_frames'],
-            delete_below=p['cleanup_delete_below'], fill_above=p['cleanup_fill_above'],
-            max_iterations=p['cleanup_max_iterations'], min_area=p['min_region_area'],
-            keep=p['keep_regions'], contour_step=p['contour_step'], smoothing=p['smoothing'],
-            edge_low=p['edge_low'], edge_high=p['edge_high'], min_edge_length=p['min_edge_length'])
+        return pipeline_settings(self.params)
 
     def _on_parameters_set(self, changes) -> None:
         for change in changes:
