@@ -67,8 +67,8 @@ def test_rcl_accepts_the_studio_as_a_params_file(tmp_path, ros_env):
     ctx = rclpy.Context()
     rclpy.init(args=['--ros-args', '--params-file', str(path)], context=ctx, domain_id=ros_env.domain_id)
     try:
-        node = Node('contour_node', context=ctx, automatically_declare_parameters_from_overrides=True,
-                    enable_rosout=False)
+        node = Node('contour_node', namespace='/cam_side', context=ctx,
+                    automatically_declare_parameters_from_overrides=True, enable_rosout=False)
         try:
             assert node.get_parameter('threshold').value == 4.5
             assert list(node.get_parameter('studio.cameras').value) == ['cam_front', 'cam_side', 'cam_top']

@@ -18,7 +18,7 @@ wildcard ``/**`` as nested parameters that every node may declare::
           ...
           joints: {shoulder_l: [x, y, z], ...}      # optional
         initial_pose: {names: [...], positions: [...]}   # optional
-    contour_node:
+    /**/contour_node:                 # every contour_node, whatever its camera namespace
       ros__parameters: {...}
 """
 from __future__ import annotations
@@ -70,7 +70,8 @@ class Studio:
                                       'positions': [float(v) for v in self.initial_pose.values()]}
         data = {WILDCARD: {'ros__parameters': shared}}
         for node, params in self.node_parameters.items():
-            data[node] = {'ros__parameters': params}
+            # '/**/name' so that a node in any namespace (one contour_node per camera) gets them
+            data[f'{WILDCARD}/{node}'] = {'ros__parameters': params}
         return data
 
     def save(self, path: str | Path) -> None:
@@ -100,7 +101,7 @@ class Studio:
             body = load_default_body()
         pose = shared.get('initial_pose') or {}
         initial = dict(zip(pose.get('names', []), map(float, pose.get('positions', []))))
-        nodes = {k: v.get('ros__parameters', {}) for k, v in data.items()
+        nodes = {k.removeprefix(WILDCARD).strip('/'): v.get('ros__parameters', {}) for k, v in data.items()
                  if k != WILDCARD and isinstance(v, dict)}
         return cls(str(studio.get('name', 'studio')), cameras, body, float(studio.get('frame_rate', 30.0)),
                    nodes, initial)
