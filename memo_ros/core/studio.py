@@ -143,12 +143,15 @@ def _camera_from_entry(name: str, entry, source: str) -> Camera:
         raise ValueError(f'{source}: camera {name!r}: {exc}') from exc
 
 
-def load_studio(path_or_name: str | Path) -> Studio:
-    """Load a studio from a path, or a shipped one by name (e.g. 'studio_orthogonal')."""
+def studio_path(path_or_name: str | Path) -> Path:
+    """A studio file's path: as given, or a shipped studio by name (e.g. 'studio_orthogonal')."""
     path = Path(path_or_name)
     if not path.is_file() and path.suffix == '' and not path.parent.parts:
         from memo_ros.paths import config_path
-        path = config_path(f'{path_or_name}.yaml')
-    return Studio.load(path)
+        return config_path(f'{path_or_name}.yaml')
+    return path
 
 
+def load_studio(path_or_name: str | Path) -> Studio:
+    """Load a studio from a path, or a shipped one by name."""
+    return Studio.load(studio_path(path_or_name))

@@ -16,6 +16,7 @@ COMMANDS = {
     'simulate': ('memo_ros.tools.simulate', 'render a simulated scenario into a rosbag2 with ground truth'),
     'bag': ('memo_ros.tools.bag', 'inspect, play and record rosbag2 files over DDS'),
     'echo': ('memo_ros.tools.echo', 'print messages of a topic as YAML (or CSV rows)'),
+    'launch': ('memo_ros.tools.launch', 'start the graph for a studio: one contour_node per camera'),
     'evaluate': ('memo_ros.tools.evaluate', 'score estimated poses against ground truth'),
     'benchmark': ('memo_ros.tools.benchmark', 'measure speed of the core and tools'),
 }

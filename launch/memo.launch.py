@@ -1,0 +1,30 @@
+"""The memo_ros graph on a ROS 2 Jazzy install: one contour_node per camera of a studio.
+
+    ros2 launch memo_ros memo.launch.py studio:=/path/to/studio.yaml [reliable_images:=true]
+
+``studio`` is a path or the name of a shipped studio (studio_orthogonal, street);
+every node gets it as its params file, as ``memo-ros launch`` does without ROS.
+"""
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+
+def _graph(context):
+    from memo_ros.core.studio import load_studio, studio_path
+    path = str(studio_path(LaunchConfiguration('studio').perform(context)).resolve())
+    reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
+    return [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
+                 parameters=[path, {'reliable_images': reliable}], output='screen')
+            for camera in load_studio(path).camera_names]
+
+
+def generate_launch_description():
+    return LaunchDescription([
+        DeclareLaunchArgument('studio', default_value='studio_orthogonal',
+                              description='studio YAML: a path, or a shipped studio name'),
+        DeclareLaunchArgument('reliable_images', default_value='false',
+                              description='subscribe images reliably (bag replay) instead of best effort'),
+        OpaqueFunction(function=_graph),
+    ])

@@ -1,0 +1,122 @@
+"""Start the graph for a studio: one contour_node per camera, each its own process.
+
+Every node gets the studio file as ``--ros-args --params-file``; its output is
+prefixed with its name.  Nothing is restarted silently: when one node ends,
+the launcher says how, stops the others and exits non-zero; Ctrl-C (or
+SIGTERM) stops them all and exits 0.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from memo_ros.core.studio import Studio, studio_path
+
+STOP_GRACE_S = 5.0
+
+
+@dataclass
+class NodeProcess:
+    """A launched node: its label, command and process."""
+
+    label: str
+    command: list[str]
+    process: subprocess.Popen | None = None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('studio', help='studio YAML (path, or a shipped name such as studio_orthogonal)')
+    parser.add_argument('--reliable-images', action='store_true',
+                        help='subscribe images reliably (for bag replay) instead of best effort')
+    parser.add_argument('--log-level', default='info', choices=('debug', 'info', 'warn', 'error', 'fatal'))
+
+
+def run(args: argparse.Namespace) -> int:
+    path = studio_path(args.studio).resolve()
+    studio = Studio.load(path)
+    nodes = graph_commands(studio, path, args.reliable_images, args.log_level)
+    return Launcher(nodes).run()
+
+
+def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
+                   log_level: str = 'info') -> list[NodeProcess]:
+    """The processes of the graph: one contour_node per camera, in its camera's namespace."""
+    nodes = []
+    for cam in studio.camera_names:
+        command = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{cam}',
+                   '--params-file', str(path), '--log-level', log_level]
+        if reliable_images:
+            command += ['-p', 'reliable_images:=true']
+        nodes.append(NodeProcess(f'{cam}/contour_node', command))
+    return nodes
+
+
+class Launcher:
+    """Runs node processes, prefixes their output, and stops them all together."""
+
+    def __init__(self, nodes: list[NodeProcess]) -> None:
+        self.nodes = nodes
+        self._stop = threading.Event()
+
+    def run(self) -> int:
+        previous = {s: signal.signal(s, lambda *_: self._stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            for node in self.nodes:
+                node.process = subprocess.Popen(node.command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                                text=True, bufsize=1, start_new_session=True)
+                threading.Thread(target=self._relay, args=(node,), daemon=True).start()
+                self._say(f'started {node.label} (pid {node.process.pid})')
+            return self._supervise()
+        finally:
+            self._stop_all()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def _supervise(self) -> int:
+        while not self._stop.is_set():
+            for node in self.nodes:
+                code = node.process.poll()
+                if code is not None:
+                    self._say(f'{node.label} {exit_reason(code)}; stopping the others')
+                    return code if code > 0 else 1
+            time.sleep(0.1)
+        self._say('stopping on request')
+        return 0
+
+    def _stop_all(self) -> None:
+        running = [n for n in self.nodes if n.process is not None and n.process.poll() is None]
+        for node in running:
+            node.process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + STOP_GRACE_S
+        for node in running:
+            try:
+                node.process.wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                node.process.kill()
+                node.process.wait()
+                self._say(f'{node.label} did not stop within {STOP_GRACE_S:.0f} s: killed')
+
+    def _relay(self, node: NodeProcess) -> None:
+        for line in node.process.stdout:
+            sys.stdout.write(f'[{node.label}] {line}')
+            sys.stdout.flush()
+
+    @staticmethod
+    def _say(text: str) -> None:
+        print(f'[launch] {text}', flush=True)
+
+
+def exit_reason(code: int) -> str:
+    """How a process ended, in words."""
+    if code < 0:
+        try:
+            return f'was killed by {signal.Signals(-code).name}'
+        except ValueError:
+            return f'was killed by signal {-code}'
+    return f'exited with code {code}'
