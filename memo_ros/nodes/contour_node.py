@@ -45,6 +45,8 @@ PARAMS = (
     Param('publish_debug_mask', False, 'also publish the cleaned person mask on debug/mask (mono8)'),
     Param('reliable_images', False, 'subscribe images reliably (bag replay) instead of the sensor-data '
           'profile (best effort)', read_only=True),
+    Param('reliable_camera_info', True, 'subscribe camera_info reliably; set false for a driver that publishes '
+          'it best effort (a reliable subscription cannot match a best-effort publisher)', read_only=True),
     Param('image_queue_depth', 5, 'image subscription queue depth', 1, 1000, read_only=True),
 )
 
@@ -78,7 +80,10 @@ class ContourNode(Node):
             reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_images'] else ReliabilityPolicy.BEST_EFFORT,
             history=HistoryPolicy.KEEP_LAST, depth=self.params['image_queue_depth'])
         self.create_subscription(Image, 'image_raw', self._on_image, image_qos)
-        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, 10)
+        info_qos = QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_camera_info'] else ReliabilityPolicy.BEST_EFFORT,
+            history=HistoryPolicy.KEEP_LAST, depth=10)
+        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, info_qos)
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)

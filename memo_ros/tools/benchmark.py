@@ -19,7 +19,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-SUITES = ('foundation', 'contours')
+SUITES = ('foundation', 'contours', 'contour-node')
 SIM_SCENARIO = 'studio-arm'
 SIM_FRAMES = 30
 SIM_SIZE = (640, 480)
@@ -34,7 +34,8 @@ SIM_STAGES = {
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('suite', choices=SUITES, help='what to measure: foundation = renderer and simulator; '
-                        'contours = the contour pipeline per 640x480 frame, one OpenCV thread')
+                        'contours = the contour pipeline per 640x480 frame, one OpenCV thread; '
+                        'contour-node = the contour_node process fed at 30 and 60 Hz over DDS')
     parser.add_argument('--repeat', type=int, default=20, help='timed repetitions per renderer case (default 20)')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of the table')
 
@@ -53,6 +54,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"command  {report['command']}")
             print_contour_benchmark(report)
         return 0
+    if args.suite == 'contour-node':
+        from memo_ros.tools.bench_contour_node import print_node_benchmark, run_node_benchmark
+        report = {'command': command_line(args), 'machine': machine(), **run_node_benchmark()}
+        if args.json:
+            print(json.dumps(report))
+        else:
+            print(f"command  {report['command']}")
+            print_node_benchmark(report)
+        return 0
     report = {'command': command_line(args), 'machine': machine(),
               'renderer': renderer_times(args.repeat), 'simulator': simulator_throughput()}
     if args.json:
@@ -64,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
 
 def command_line(args: argparse.Namespace) -> str:
     """The command line that reproduces this run."""
-    words = ['memo-ros', 'benchmark', args.suite, '--repeat', str(args.repeat)] + (['--json'] if args.json else [])
+    repeat = [] if args.suite == 'contour-node' else ['--repeat', str(args.repeat)]   # that suite has no repeats
+    words = ['memo-ros', 'benchmark', args.suite, *repeat] + (['--json'] if args.json else [])
     return shlex.join(words)
 
 
