@@ -44,32 +44,33 @@ def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
     if args.repeat < 1:
         raise CliError('--repeat must be at least 1')
-    if args.suite == 'contours':
-        from memo_ros.tools.bench_contours import print_contour_benchmark, run_contour_benchmark
-        report = {'command': command_line(args), 'machine': machine(),
-                  **run_contour_benchmark(repeat=args.repeat)}
-        if args.json:
-            print(json.dumps(report))
-        else:
-            print(f"command  {report['command']}")
-            print_contour_benchmark(report)
-        return 0
-    if args.suite == 'contour-node':
-        from memo_ros.tools.bench_contour_node import print_node_benchmark, run_node_benchmark
-        report = {'command': command_line(args), 'machine': machine(), **run_node_benchmark()}
-        if args.json:
-            print(json.dumps(report))
-        else:
-            print(f"command  {report['command']}")
-            print_node_benchmark(report)
-        return 0
-    report = {'command': command_line(args), 'machine': machine(),
-              'renderer': renderer_times(args.repeat), 'simulator': simulator_throughput()}
+    measure, show = _suite(args.suite)
+    report = {'command': command_line(args), 'machine': machine(), **measure(args)}
     if args.json:
         print(json.dumps(report))
     else:
-        print_report(report)
+        show(report)
     return 0
+
+
+def _suite(name: str):
+    """(measure(args) -> dict, print(report)) of a benchmark suite; the node suites import lazily."""
+    if name == 'contours':
+        from memo_ros.tools.bench_contours import print_contour_benchmark, run_contour_benchmark
+        return (lambda args: run_contour_benchmark(repeat=args.repeat)), _with_command(print_contour_benchmark)
+    if name == 'contour-node':
+        from memo_ros.tools.bench_contour_node import print_node_benchmark, run_node_benchmark
+        return (lambda args: run_node_benchmark()), _with_command(print_node_benchmark)
+    return (lambda args: {'renderer': renderer_times(args.repeat), 'simulator': simulator_throughput()},
+            print_report)
+
+
+def _with_command(show):
+    """A report printer that first prints the command line that produced the report."""
+    def printer(report: dict) -> None:
+        print(f"command  {report['command']}")
+        show(report)
+    return printer
 
 
 def command_line(args: argparse.Namespace) -> str:
