@@ -13,6 +13,7 @@ import sys
 
 import numpy as np
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -21,6 +22,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from memo_ros.core.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.encodings import ImageFormatError, image_to_array, to_grey8
 from memo_ros.ros.health import NodeHealth
+from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.params import Param, declare, validator
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
@@ -71,8 +73,8 @@ class ContourNode(Node):
         self.add_on_set_parameters_callback(validator(PARAMS))
         self.add_post_set_parameters_callback(self._on_parameters_set)
         camera = self.get_namespace().strip('/') or 'camera'
-        self.health = NodeHealth(self, f'{self.get_fully_qualified_name()}', hardware_id=camera)
-        self.pipeline = ContourPipeline(self._settings())
+        self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id=camera)
+        self.pipeline = ContourPipeline(pipeline_settings(self.params))
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
         # sensor-data profile (best effort) for live cameras, reliable for bag replay
@@ -89,13 +91,10 @@ class ContourNode(Node):
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
 
-    def _settings(self) -> PipelineSettings:
-        return pipeline_settings(self.params)
-
     def _on_parameters_set(self, changes) -> None:
         for change in changes:
             self.params[change.name] = change.value
-        self.pipeline = ContourPipeline(self._settings())
+        self.pipeline = ContourPipeline(pipeline_settings(self.params))
         self.health.note('reconfigured', 'parameters changed: pipeline rebuilt')
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
@@ -105,7 +104,7 @@ class ContourNode(Node):
 
     def _on_image(self, msg: Image) -> None:
         self.health.count('frames_in')
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = stamp_to_ns(msg.header.stamp)
         if self.camera_info is None:
             self.health.drop('no_camera_info', 'image arrived before any camera_info')
             return
@@ -167,7 +166,7 @@ def main(args: list[str] | None = None) -> int:
         return 2
     try:
         rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()

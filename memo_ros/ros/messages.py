@@ -29,6 +29,11 @@ class MessageTypeError(ValueError):
     """A message type name that is malformed or not installed."""
 
 
+def stamp_to_ns(stamp) -> int:
+    """builtin_interfaces/Time (rclpy or rosbags) to integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
 def import_message_type(type_name: str) -> type:
     """The rclpy message class for 'pkg/msg/Name' (also 'pkg/Name'), with a clear error when unavailable."""
     parts = type_name.strip().split('/')

@@ -25,12 +25,13 @@ from rclpy.executors import Executor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosbags.interfaces import Connection, Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from memo_ros.ros.dds import (DURABILITY, RELIABILITY, absolute_topic, adapted_qos, qos_profile, ros_session,
                               stop_on_signals, topic_types)
 from memo_ros.ros.messages import MessageTypeError, import_message_type
+from memo_ros.tools.bagio import BagError, open_bag
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
@@ -40,26 +41,7 @@ ALL_TOPICS_PERIOD = 0.5      # seconds between two looks at the graph with --all
 INFINITE_NS = 2**63 - 1
 
 
-class BagError(ValueError):
-    """A bag that cannot be read, written or played as asked."""
-
-
 # ----------------------------------------------------------------------------- reading and info
-
-def open_bag(path: str | Path) -> Reader:
-    """An open rosbags Reader for a bag directory or a single .mcap/.db3 file, or a BagError saying why not."""
-    path = Path(path)
-    if not path.exists():
-        raise BagError(f'no bag at {path}')
-    if path.is_dir() and not (path / 'metadata.yaml').is_file():
-        raise BagError(f'{path} is not a rosbag2 directory (no metadata.yaml)')
-    try:
-        reader = Reader(path)
-        reader.open()
-    except Exception as exc:  # noqa: BLE001 - rosbags raises many unrelated types for unreadable bags
-        raise BagError(f'cannot read bag {path}: {exc}') from None
-    return reader
-
 
 def storage_of(path: Path) -> tuple[str, list[Path]]:
     """Storage id ('mcap' or 'sqlite3') and data files of a bag directory or storage file."""

@@ -7,7 +7,6 @@ deserializes with rclpy, which tolerates both, so any Jazzy bag reads.
 """
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -16,13 +15,10 @@ import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from memo_ros.ros.messages import import_message_type, stamp_to_ns  # noqa: F401 - stamp_to_ns re-exported
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 _T = TYPESTORE.types
-
-
-def stamp_to_ns(stamp) -> int:
-    """builtin_interfaces/Time (either flavour) to integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def header(stamp_ns: int, frame_id: str):
@@ -112,32 +108,32 @@ class BagMessage:
     message: object
 
 
-def message_class(msgtype: str):
-    """The rclpy message class for 'pkg/msg/Name'."""
-    pkg, kind, name = msgtype.split('/')
-    return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
+class BagError(ValueError):
+    """A bag that cannot be read, written or played as asked."""
 
 
-def open_reader(path: str | Path) -> Reader:
-    """Open a rosbag2 for reading, with a clear error when it is not one."""
+def open_bag(path: str | Path) -> Reader:
+    """An open rosbags Reader for a bag directory or a single .mcap/.db3 file, or a BagError saying why not."""
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f'no bag at {path}')
+        raise BagError(f'no bag at {path}')
+    if path.is_dir() and not (path / 'metadata.yaml').is_file():
+        raise BagError(f'{path} is not a rosbag2 directory (no metadata.yaml)')
     try:
         reader = Reader(path)
         reader.open()
-    except Exception as exc:  # noqa: BLE001 - rosbags raises several unrelated types
-        raise ValueError(f'cannot read bag {path}: {exc}') from exc
+    except Exception as exc:  # noqa: BLE001 - rosbags raises many unrelated types for unreadable bags
+        raise BagError(f'cannot read bag {path}: {exc}') from None
     return reader
 
 
 def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator[BagMessage]:
     """Deserialized messages of ``topics`` (all if None) in log-time order."""
     from rclpy.serialization import deserialize_message
-    reader = open_reader(path)
+    reader = open_bag(path)
     try:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        classes = {c.id: message_class(c.msgtype) for c in conns}
+        classes = {c.id: import_message_type(c.msgtype) for c in conns}
         for conn, timestamp, data in reader.messages(connections=conns):
             yield BagMessage(conn.topic, conn.msgtype, timestamp, deserialize_message(data, classes[conn.id]))
     finally:
@@ -146,7 +142,7 @@ def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
 
 def bag_topics(path: str | Path) -> dict[str, str]:
     """Topic -> type of a bag."""
-    reader = open_reader(path)
+    reader = open_bag(path)
     try:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
