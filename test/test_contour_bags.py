@@ -6,26 +6,15 @@ import numpy as np
 import pytest
 
 from memo_ros.core.contours import ContourPipeline
-from memo_ros.core.encodings import image_to_array, to_grey8
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
 from memo_ros.core.rotations import quat_to_matrix
 from memo_ros.core.studio import Studio
 from memo_ros.nodes.contour_node import pipeline_settings
-from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.tools.bagio import grey_images, read_messages, stamp_to_ns
 from memo_ros.tools.simulate import TRUTH_POSES, simulate
 
 CASES = [('studio-arm', 4), ('street-walk', 20)]
-
-
-def _frames(bag, topic):
-    out = []
-    for m in read_messages(bag, [topic]):
-        msg = m.message
-        grey = to_grey8(image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian),
-                        msg.encoding)
-        out.append((stamp_to_ns(msg.header.stamp), grey))
-    return out
 
 
 def _truth_poses(bag):
@@ -49,7 +38,7 @@ def test_silhouettes_and_contours_match_the_rendered_truth(tmp_path, scenario, f
     for cam in studio.cameras:
         pipeline = ContourPipeline(settings)
         scored = 0
-        for stamp, grey in _frames(result.bag, f'/{cam.name}/image_raw'):
+        for stamp, grey in grey_images(result.bag, f'/{cam.name}/image_raw'):
             out = pipeline.process(grey)
             if stamp not in truth:                       # the empty studio: learning, then nobody
                 assert len(out.contours) == 0
@@ -72,7 +61,7 @@ def test_an_empty_scene_after_learning_gives_an_empty_contour_set(tmp_path):
     result = simulate('studio-arm', tmp_path / 'bag', frames=1, width=320, height=240)
     studio = Studio.load(result.studio)
     pipeline = ContourPipeline(pipeline_settings(studio.node_parameters['contour_node']))
-    frames = _frames(result.bag, '/cam_front/image_raw')
+    frames = grey_images(result.bag, '/cam_front/image_raw')
     for _, grey in frames[:result.empty_frames]:
         pipeline.process(grey)
     again = pipeline.process(frames[0][1])              # the empty studio once more, learnt now

@@ -10,12 +10,11 @@ from memo_ros.core.body import load_default_body
 from memo_ros.core.contours import (CONTOUR_DTYPE, ContourPipeline, PipelineSettings, occluding_contours,
                                     smooth_closed_contour)
 from memo_ros.core.edges import EDGE_DTYPE, edge_lines, edge_lines_in_boxes, merge_boxes
-from memo_ros.core.encodings import image_to_array, to_grey8
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
 from memo_ros.core.scenarios import make_scenario
 from memo_ros.core.segmentation import select_regions
-from memo_ros.tools.bagio import read_messages
+from memo_ros.tools.bagio import grey_images
 from memo_ros.tools.simulate import simulate
 
 WIDTH, HEIGHT = 640, 480
@@ -160,11 +159,7 @@ def studio_frames(tmp_path_factory):
     poses = [body.forward_kinematics(qk) for qk in q]
     out = {}
     for cam in scenario.cameras:
-        frames = []
-        for m in read_messages(bag, [f'/{cam.name}/image_raw']):
-            msg = m.message
-            frames.append(to_grey8(image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data,
-                                                  msg.is_bigendian), msg.encoding))
+        frames = [grey for _, grey in grey_images(bag, f'/{cam.name}/image_raw')]
         truth = [render(cam, R, o, body.semi_axes, body.lengths).label > 0 for R, o in poses]
         # the simulator's empty studio precedes the subject
         out[cam.name] = (frames[result.empty_frames:], truth, frames[:result.empty_frames])

@@ -8,12 +8,11 @@ import pytest
 from memo_ros.core.body import load_default_body
 from memo_ros.core.change_detection import (ChangeDetector, Workspace, change_mask, change_statistic,
                                             change_statistic_reference, design_matrix, detect_changes)
-from memo_ros.core.encodings import image_to_array, to_grey8
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
 from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, make_scenario
 from memo_ros.core.segmentation import (BackgroundSegmenter, Segmenter, cleanup, select_regions)
-from memo_ros.tools.bagio import read_messages
+from memo_ros.tools.bagio import grey_images
 from memo_ros.tools.simulate import simulate
 
 WIDTH, HEIGHT = 640, 480
@@ -116,12 +115,7 @@ def test_unknown_segmenter_is_refused():
 
 # ----------------------------------------------------- simulated scenarios
 def _grey_frames(bag, topic):
-    frames = []
-    for m in read_messages(bag, [topic]):
-        msg = m.message
-        frames.append(to_grey8(image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data,
-                                              msg.is_bigendian), msg.encoding))
-    return frames
+    return [grey for _, grey in grey_images(bag, topic)]
 
 
 def _scenario_frames(tmp_path_factory, name: str, frames: int, noise: float) -> dict:

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from memo_ros.core.body import load_default_body
-from memo_ros.core.encodings import image_to_array, to_grey8
 from memo_ros.core.imaging import PART_TINT, ImagingOptions, background_image, compose_frame
 from memo_ros.core.render import render
 from memo_ros.core.rotations import quat_to_matrix
 from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, SCENARIOS, make_scenario
 from memo_ros.core.studio import Studio
 from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
+from memo_ros.tools.bagio import grey_images as bag_grey_images
 from memo_ros.tools.simulate import ENCODINGS, START_NS, TRUTH_JOINTS, TRUTH_POSES, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -29,12 +29,7 @@ WALKING = ('studio-walk', 'street-walk')
 
 def grey_images(bag: Path, topic: str) -> list[np.ndarray]:
     """Every image of ``topic`` decoded to grey levels like the contour node does."""
-    images = []
-    for m in read_messages(bag, [topic]):
-        msg = m.message
-        pixels = image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian)
-        images.append(to_grey8(pixels, msg.encoding))
-    return images
+    return [grey for _, grey in bag_grey_images(bag, topic)]
 
 
 def raw_images(bag: Path, topic: str) -> list[bytes]:

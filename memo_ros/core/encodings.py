@@ -44,6 +44,12 @@ def image_to_array(encoding: str, height: int, width: int, step: int, data, is_b
     return pixels
 
 
+def image_message_to_grey(msg) -> np.ndarray:
+    """Grey levels of a sensor_msgs/Image (rclpy or rosbags flavour): decode, then convert."""
+    pixels = image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian)
+    return to_grey8(pixels, msg.encoding)
+
+
 def to_grey8(pixels: np.ndarray, encoding: str) -> np.ndarray:
     """Grey levels 0..255 (uint8) from any accepted encoding (ITU-R 601 luma for colour)."""
     if encoding == 'mono8':

@@ -20,7 +20,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from memo_ros.core.contours import ContourPipeline, PipelineSettings
-from memo_ros.core.encodings import ImageFormatError, image_to_array, to_grey8
+from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.params import Param, declare, validator
@@ -115,7 +115,7 @@ class ContourNode(Node):
             self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
             return
         try:
-            pixels = image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian)
+            grey = image_message_to_grey(msg)
         except ImageFormatError as exc:
             self.health.drop(exc.reason, f'bad image: {exc}')
             return
@@ -125,7 +125,7 @@ class ContourNode(Node):
                                               f'{info.width}x{info.height}')
             return
         self.last_stamp_ns = stamp
-        result = self.pipeline.process(to_grey8(pixels, msg.encoding))
+        result = self.pipeline.process(grey)
         self._publish(msg, result)
         self.health.count('processed')
         if result.warming_up:

@@ -140,6 +140,13 @@ def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
         reader.close()
 
 
+def grey_images(path: str | Path, topic: str) -> list[tuple[int, np.ndarray]]:
+    """(header stamp in ns, grey image) of every image on ``topic``, in order."""
+    from memo_ros.core.encodings import image_message_to_grey
+    return [(stamp_to_ns(m.message.header.stamp), image_message_to_grey(m.message))
+            for m in read_messages(path, [topic])]
+
+
 def bag_topics(path: str | Path) -> dict[str, str]:
     """Topic -> type of a bag."""
     reader = open_bag(path)

@@ -160,7 +160,7 @@ def _nearest(stamps: np.ndarray, stamp: int) -> int:
 
 def _read_images(bag: Path, cameras: list[str], stamps: set[int]) -> dict[tuple[str, int], np.ndarray]:
     """Grey images (uint8) of ``cameras`` at header ``stamps``, stopping as soon as all are found."""
-    from memo_ros.core.encodings import image_to_array, to_grey8
+    from memo_ros.core.encodings import image_message_to_grey
     from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
     available = bag_topics(bag)
     topics = {f'/{c}/image_raw': c for c in cameras if f'/{c}/image_raw' in available}
@@ -175,9 +175,7 @@ def _read_images(bag: Path, cameras: list[str], stamps: set[int]) -> dict[tuple[
             key = (topics[m.topic], stamp)
             if stamp not in stamps or key in images:
                 continue
-            msg = m.message
-            pixels = image_to_array(msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian)
-            images[key] = to_grey8(pixels, msg.encoding)
+            images[key] = image_message_to_grey(m.message)
             if len(images) == wanted:
                 break
     finally:
