@@ -1,0 +1,76 @@
+"""The tracker outputs as rclpy messages: joint states, part poses, RViz markers, root pose with covariance.
+
+Shared by every node that publishes a body estimate (the articulated tracker and
+the walking tracker), so both speak exactly DESIGN.md's contract.
+"""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseWithCovarianceStamped, Quaternion, Vector3
+from sensor_msgs.msg import JointState
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from memo_ros.core.body import PART_NAMES, Body
+from memo_ros.core.rotations import matrix_to_quat
+
+WORLD = 'world'
+MARKER_NAMESPACE = 'memo_body'
+
+
+def stamp_from_ns(stamp_ns: int) -> Time:
+    """builtin_interfaces/Time from integer nanoseconds."""
+    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+
+
+def world_header(stamp_ns: int) -> Header:
+    return Header(stamp=stamp_from_ns(stamp_ns), frame_id=WORLD)
+
+
+def joint_state_message(stamp_ns: int, names, positions, velocities=None) -> JointState:
+    """sensor_msgs/JointState in ``world`` with the generalized coordinates (and their time derivatives)."""
+    msg = JointState(header=world_header(stamp_ns), name=list(names))
+    msg.position = [float(v) for v in positions]
+    if velocities is not None:
+        msg.velocity = [float(v) for v in velocities]
+    return msg
+
+
+def _pose(rotation: np.ndarray, origin: np.ndarray) -> Pose:
+    x, y, z, w = matrix_to_quat(rotation)
+    return Pose(position=Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2])),
+                orientation=Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)))
+
+
+def pose_array_message(stamp_ns: int, rotations: np.ndarray, origins: np.ndarray) -> PoseArray:
+    """geometry_msgs/PoseArray: one pose per part in part order (origin = proximal joint, +z along the part)."""
+    return PoseArray(header=world_header(stamp_ns), poses=[_pose(r, o) for r, o in zip(rotations, origins)])
+
+
+def marker_array_message(stamp_ns: int, body: Body, rotations: np.ndarray, origins: np.ndarray,
+                         colour: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.8),
+                         lifetime_s: float = 0.5) -> MarkerArray:
+    """One CYLINDER per part, centred on the part's mid-point (RViz cylinders are centred, along z)."""
+    markers = []
+    r, g, b, a = colour
+    for i, name in enumerate(PART_NAMES):
+        centre = origins[i] + rotations[i][:, 2] * (body.lengths[i] / 2.0)
+        m = Marker(header=world_header(stamp_ns), ns=MARKER_NAMESPACE, id=i, type=Marker.CYLINDER,
+                   action=Marker.ADD, pose=_pose(rotations[i], centre),
+                   scale=Vector3(x=float(2 * body.semi_axes[i, 0]), y=float(2 * body.semi_axes[i, 1]),
+                                 z=float(body.lengths[i])),
+                   color=ColorRGBA(r=r, g=g, b=b, a=a), text=name)
+        m.lifetime.sec = int(lifetime_s)
+        m.lifetime.nanosec = int((lifetime_s % 1.0) * 1e9)
+        markers.append(m)
+    return MarkerArray(markers=markers)
+
+
+def root_pose_message(stamp_ns: int, rotation: np.ndarray, origin: np.ndarray,
+                      covariance: np.ndarray) -> PoseWithCovarianceStamped:
+    """The pelvis pose with its 6x6 covariance (x, y, z, rotation about x, y, z), like robot_localization's output."""
+    msg = PoseWithCovarianceStamped(header=world_header(stamp_ns))
+    msg.pose.pose = _pose(rotation, origin)
+    msg.pose.covariance = [float(v) for v in np.asarray(covariance, float).reshape(36)]
+    return msg
