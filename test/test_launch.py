@@ -6,8 +6,9 @@ import re
 import signal
 import time
 
-from memo_ros.core.studio import load_studio
+from memo_ros.core.studio import load_studio, studio_path
 from memo_ros.ros.dds import ros_session
+from memo_ros.tools.launch import graph_commands
 
 
 def _wait_for_nodes(ros_env, topics, timeout=20.0):
@@ -31,14 +32,17 @@ def _started_pids(output: str) -> list[int]:
 
 
 def test_ctrl_c_stops_every_node_and_exits_zero(ros_env):
-    cameras = load_studio('studio_orthogonal').camera_names
+    studio = load_studio('studio_orthogonal')
+    cameras = studio.camera_names
     launcher = ros_env.start('launch', 'studio_orthogonal')
     _wait_for_nodes(ros_env, [f'/{c}/contours' for c in cameras])
     launcher.send_signal(signal.SIGINT)
     out, _ = launcher.communicate(timeout=30)
     assert launcher.returncode == 0, out
     pids = _started_pids(out)
-    assert len(pids) == len(cameras) and not any(_alive(p) for p in pids)
+    labels = [n.label for n in graph_commands(studio, studio_path('studio_orthogonal'))]
+    assert 'selector_node' in labels                     # the multi-camera graph selects cameras per part
+    assert len(pids) == len(labels) and not any(_alive(p) for p in pids)
     assert 'stopping on request' in out
 
 
@@ -68,3 +72,4 @@ def test_ros2_launch_file_compiles_and_names_the_shipped_executable():
     compile(source, 'memo.launch.py', 'exec')
     setup = (ROOT / 'setup.py').read_text()
     assert "executable='contour_node'" in source and "'contour_node = memo_ros.nodes.contour_node:main'" in setup
+    assert "executable='selector_node'" in source and "'selector_node = memo_ros.nodes.selector_node:main'" in setup

@@ -97,9 +97,13 @@ def _intersect_cylinder(centre: np.ndarray, directions: np.ndarray, rotation: np
     """Distance along each ray to the elliptic cylinder (inf = miss) and part-frame normals at the hits."""
     o = rotation.T @ (centre - origin)             # ray origin in the part frame
     d = directions @ rotation                      # ray directions in the part frame (N, 3)
-    a, b = axes
+    return _hit_local(o, d, axes[0], axes[1], length, want_normals)
+
+
+def _hit_local(o: np.ndarray, d: np.ndarray, a, b, length, want_normals: bool):
+    """Ray-cylinder hits in part frames: origins o (3,) or (N, 3), directions d (N, 3); a, b, length scalar or (N,)."""
     # side: (x/a)^2 + (y/b)^2 = 1 with 0 <= z <= length
-    ox, oy = o[0] / a, o[1] / b
+    ox, oy = o[..., 0] / a, o[..., 1] / b
     dx, dy = d[:, 0] / a, d[:, 1] / b
     qa = dx * dx + dy * dy
     qb = 2.0 * (ox * dx + oy * dy)
@@ -110,15 +114,15 @@ def _intersect_cylinder(centre: np.ndarray, directions: np.ndarray, rotation: np
         s_side = (-qb - root) / (2.0 * qa)
         s_far = (-qb + root) / (2.0 * qa)
     s_side = np.where(s_side > NEAR, s_side, s_far)     # camera inside the infinite cylinder
-    z_side = o[2] + s_side * d[:, 2]
+    z_side = o[..., 2] + s_side * d[:, 2]
     side_ok = (disc >= 0) & (s_side > NEAR) & (z_side >= 0.0) & (z_side <= length)
     best = np.where(side_ok, s_side, np.inf)
     cap_id = np.zeros(len(d), np.int8)
     for k, z_cap in ((1, 0.0), (2, length)):
         with np.errstate(invalid='ignore', divide='ignore'):
-            s_cap = (z_cap - o[2]) / d[:, 2]
-        x = (o[0] + s_cap * d[:, 0]) / a
-        y = (o[1] + s_cap * d[:, 1]) / b
+            s_cap = (z_cap - o[..., 2]) / d[:, 2]
+        x = (o[..., 0] + s_cap * d[:, 0]) / a
+        y = (o[..., 1] + s_cap * d[:, 1]) / b
         ok = (s_cap > NEAR) & (x * x + y * y <= 1.0) & (s_cap < best)
         best = np.where(ok, s_cap, best)
         cap_id = np.where(ok, k, cap_id)
@@ -130,6 +134,63 @@ def _intersect_cylinder(centre: np.ndarray, directions: np.ndarray, rotation: np
     n[cap_id == 2] = (0.0, 0.0, 1.0)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     return best, n
+
+
+def render_labels(camera: Camera, rotations: np.ndarray, origins: np.ndarray, semi_axes: np.ndarray,
+                  lengths: np.ndarray, scale: float = 1.0, view: Camera | None = None) -> Rendering:
+    """Label and depth images like :func:`render` (no normals), every part's box cast in one vectorised batch.
+
+    The same exact ray-cylinder test over the same projected boxes, so labels,
+    depths and unoccluded areas equal :func:`render`'s; it saves the per-part
+    overhead, which dominates at reduced resolution.  ``view`` is
+    ``camera.scaled(scale)`` when the caller keeps one.
+    """
+    view = view if view is not None else (camera.scaled(scale) if scale != 1.0 else camera)
+    rays = camera.pixel_grid_rays(scale).reshape(-1, 3)
+    height, width = view.height, view.width
+    n_parts = len(lengths)
+    u0, u1, v0, v1 = _projected_boxes(view, rotations, origins, semi_axes, lengths)
+    box_w, box_h = np.maximum(u1 - u0, 0), np.maximum(v1 - v0, 0)
+    sizes = box_w * box_h
+    part = np.repeat(np.arange(n_parts), sizes)                       # one entry per (part, pixel in its box)
+    k = np.arange(len(part)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    w = np.maximum(box_w, 1)[part]
+    pixel = (v0[part] + k // w) * width + u0[part] + k % w
+    centre = np.asarray(camera.t_world_cam, float)
+    o_local = np.einsum('pji,pj->pi', rotations, centre - origins)   # R^T (c - o) per part
+    directions = rays[pixel]
+    d_local = np.einsum('nj,nji->ni', directions, rotations[part])
+    dist, _ = _hit_local(o_local[part], d_local, semi_axes[part, 0], semi_axes[part, 1], lengths[part], False)
+    hit = np.isfinite(dist)
+    area = np.bincount(part[hit], minlength=n_parts).astype(np.int64)
+    pixel, part = pixel[hit], part[hit]
+    z = (dist[hit] * (directions[hit] @ np.asarray(camera.R_world_cam, float)[:, 2])).astype(np.float32)
+    order = np.lexsort((z, pixel))                                    # per pixel, nearest first
+    pixel, part, z = pixel[order], part[order], z[order]
+    first = np.ones(len(pixel), bool)
+    first[1:] = pixel[1:] != pixel[:-1]
+    label = np.zeros(height * width, np.uint8)
+    depth = np.full(height * width, np.inf, np.float32)
+    label[pixel[first]] = part[first] + 1
+    depth[pixel[first]] = z[first]
+    return Rendering(label.reshape(height, width), depth.reshape(height, width), None, area)
+
+
+def _projected_boxes(view: Camera, rotations: np.ndarray, origins: np.ndarray, semi_axes: np.ndarray,
+                     lengths: np.ndarray, margin: int = 2) -> tuple[np.ndarray, ...]:
+    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part as :func:`_projected_box`; empty: u0 >= u1."""
+    signs = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 1.0)])
+    scale = np.concatenate([semi_axes, lengths[:, None]], axis=1)              # (P, 3)
+    corners = signs[None] * scale[:, None]                                      # (P, 8, 3)
+    uv = view.project(origins[:, None] + np.einsum('pij,pcj->pci', rotations, corners))
+    finite = np.all(np.isfinite(uv), axis=(1, 2))
+    with np.errstate(invalid='ignore'):
+        lo, hi = np.nan_to_num(uv.min(axis=1)), np.nan_to_num(uv.max(axis=1))
+    u0 = np.where(finite, np.maximum(np.floor(lo[:, 0]).astype(int) - margin, 0), 0)
+    u1 = np.where(finite, np.minimum(np.ceil(hi[:, 0]).astype(int) + margin + 1, view.width), view.width)
+    v0 = np.where(finite, np.maximum(np.floor(lo[:, 1]).astype(int) - margin, 0), 0)
+    v1 = np.where(finite, np.minimum(np.ceil(hi[:, 1]).astype(int) + margin + 1, view.height), view.height)
+    return u0, u1, v0, v1
 
 
 def render_body(camera: Camera, body, q: np.ndarray, scale: float = 1.0, normals: bool = False) -> Rendering:

@@ -4,6 +4,8 @@ The type comes from the graph unless given.  YAML mode abbreviates long
 numeric arrays (image and cloud ``data``) unless ``--full`` and adds a table of
 a cloud's points (``--max-rows``).  CSV mode prints a header line of flattened
 field names, then one line per message, or one line per point of a cloud.
+A camera assignment (``/memo/camera_assignment``) prints as its part x camera
+table (``--full``: the raw DiagnosticArray), in CSV one line per part and camera.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from typing import TextIO
 
 from sensor_msgs.msg import PointCloud2
 
+from memo_ros.ros.assignment_messages import assignment_rows, assignment_table, is_assignment_message
 from memo_ros.ros.dds import RELIABILITY, absolute_topic, adapted_qos, ros_session, stop_on_signals, \
     wait_for_topic_type
 from memo_ros.ros.messages import DEFAULT_TRUNCATE, MessageTypeError, flatten_message, format_cell, \
@@ -46,6 +49,9 @@ class CsvPrinter:
         if isinstance(msg, PointCloud2):
             self._write_cloud(msg)
             return
+        if is_assignment_message(msg):
+            self._write_assignment(msg)
+            return
         flat = flatten_message(msg, self._max_array_length)
         self._header(list(flat))
         self._writer.writerow([format_cell(v) for v in flat.values()])
@@ -65,6 +71,15 @@ class CsvPrinter:
             self._writer.writerow([stamp.sec, stamp.nanosec, msg.header.frame_id, row]
                                   + [format_cell(column[row]) for column in columns])
 
+    def _write_assignment(self, msg) -> None:
+        """One line per (part, camera) of a /memo/camera_assignment message, led by its stamp."""
+        rows = assignment_rows(msg)
+        self._header(['header.stamp.sec', 'header.stamp.nanosec', 'mode'] + list(rows[0]))
+        mode = next(kv.value for kv in msg.status[0].values if kv.key == 'mode')
+        for row in rows:
+            self._writer.writerow([msg.header.stamp.sec, msg.header.stamp.nanosec, mode]
+                                  + [format_cell(v) for v in row.values()])
+
 
 class YamlPrinter:
     """Writes messages as YAML documents separated by '---'."""
@@ -76,6 +91,9 @@ class YamlPrinter:
 
     def write(self, msg) -> None:
         """One YAML document and its '---' separator."""
+        if is_assignment_message(msg) and self._truncate_length is not None:   # its part x camera table; --full: raw
+            self._out.write('\n'.join(assignment_table(msg)) + '\n---\n')
+            return
         self._out.write(message_to_yaml(msg, self._truncate_length, self._max_rows) + '---\n')
 
 
