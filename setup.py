@@ -46,6 +46,9 @@ setup(
         'console_scripts': [
             'memo-ros = memo_ros.tools.cli:main',
             'contour_node = memo_ros.nodes.contour_node:main',
+            'selector_node = memo_ros.nodes.selector_node:main',
+            'tracker_node = memo_ros.nodes.tracker_node:main',
+            'walker_node = memo_ros.nodes.walker_node:main',
         ],
     },
 )

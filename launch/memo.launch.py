@@ -15,9 +15,19 @@ def _graph(context):
     from memo_ros.core.studio import load_studio, studio_path
     path = str(studio_path(LaunchConfiguration('studio').perform(context)).resolve())
     reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
-    return [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
-                 parameters=[path, {'reliable_images': reliable}], output='screen')
-            for camera in load_studio(path).camera_names]
+    studio = load_studio(path)
+    nodes = [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
+                  parameters=[path, {'reliable_images': reliable}], output='screen')
+             for camera in studio.camera_names]
+    if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
+        nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',
+                          parameters=[path], output='screen'))
+        nodes.append(Node(package='memo_ros', executable='tracker_node', name='tracker_node',
+                          parameters=[path], output='screen'))
+    if 'walker_node' in studio.node_parameters:
+        nodes.append(Node(package='memo_ros', executable='walker_node', name='walker_node',
+                          parameters=[path], output='screen'))
+    return nodes
 
 
 def generate_launch_description():

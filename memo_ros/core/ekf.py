@@ -84,7 +84,7 @@ class ArticulatedEKF:
             if not len(m):
                 break
             # innovation covariance per measurement against the prediction: s = h P h^T + sigma^2
-            s = np.einsum('ij,jk,ik->i', m.H, Ppp, m.H) + m.sigma ** 2
+            s = np.sum((m.H @ Ppp) * m.H, axis=1) + m.sigma ** 2
             # the residual the prior alone would leave: r + H (delta so far)
             innovation = m.r + m.H @ delta[:n]
             keep = innovation ** 2 <= gate ** 2 * s

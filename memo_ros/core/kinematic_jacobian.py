@@ -87,3 +87,16 @@ def normal_jacobian(chain: ChainAxes, parts: np.ndarray, normals: np.ndarray,
     w_perp = w - np.sum(w * along, -1, keepdims=True) * along
     cols = np.cross(w_perp, normals[:, None, :]) * chain.affects[parts][:, :, None]
     return np.swapaxes(cols, 1, 2)
+
+
+def projected_rows(chain: ChainAxes, parts: np.ndarray, points: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """g . L (N, n) for world points and row vectors g (N, 3), without forming L (eq. 9 contracted).
+
+    For a rotation c about axis a through pivot c0, g . (a x (p - c0)) = a . (p x g) - g . (a x c0), so all
+    columns come from two (N, 3) @ (3, n) products; a translation column is g . a.  Equal to
+    ``einsum('ni,nij->nj', g, point_jacobian(chain, parts, points))``.
+    """
+    moment = np.cross(chain.axes, chain.pivots)                         # (n, 3): a x c0
+    rotation_cols = np.cross(points, g) @ chain.axes.T - g @ moment.T
+    rows = np.where(chain.revolute[None, :], rotation_cols, g @ chain.axes.T)
+    return rows * chain.affects[parts]

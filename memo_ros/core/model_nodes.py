@@ -12,6 +12,7 @@ the fan from the side normal to the cap normal.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -44,6 +45,34 @@ class ModelNodes:
         theta = self.theta if theta is None else theta
         n = np.stack([np.cos(theta) / self.a, np.sin(theta) / self.b, np.zeros_like(theta)], -1)
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+    # fixed per body: precomputed once, used at every relinearisation
+    @cached_property
+    def ring_starts(self) -> np.ndarray:
+        """Index of the first node (angle 0) of every side ring."""
+        return np.flatnonzero((self.rim == 0) & (np.abs(np.angle(np.exp(1j * self.theta))) < 1e-9))
+
+    @cached_property
+    def rim_index(self) -> np.ndarray:
+        """Indices of the rim nodes."""
+        return np.flatnonzero(self.rim != 0)
+
+    @cached_property
+    def rim_points(self) -> np.ndarray:
+        """Part-frame positions of the rim nodes."""
+        return self.local_points()[self.rim_index]
+
+    @cached_property
+    def rim_normals(self) -> np.ndarray:
+        """Part-frame side normals of the rim nodes."""
+        return self.side_normals()[self.rim_index]
+
+    @cached_property
+    def rim_caps(self) -> np.ndarray:
+        """Part-frame cap normals of the rim nodes (0, 0, -1 proximal; 0, 0, +1 distal)."""
+        cap = np.zeros((len(self.rim_index), 3))
+        cap[:, 2] = self.rim[self.rim_index]
+        return cap
 
 
 def model_nodes(body: Body, n_around: int = 24, ring_spacing: float = 0.03) -> ModelNodes:

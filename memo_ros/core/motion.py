@@ -90,7 +90,7 @@ class ProcessNoise:
 
     root_translation: float = 2.0    # m/s^2 /sqrt(Hz)
     root_rotation: float = 3.0       # rad/s^2 /sqrt(Hz)
-    joint_rotation: float = 20.0     # rad/s^2 /sqrt(Hz)
+    joint_rotation: float = 6.0      # rad/s^2 /sqrt(Hz); larger lets weakly observed joints drift
 
     def densities(self, body: Body) -> np.ndarray:
         """sigma per coordinate (n,)."""

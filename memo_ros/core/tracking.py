@@ -19,12 +19,11 @@ import numpy as np
 
 from memo_ros.core.body import PART_NAMES, Body
 from memo_ros.core.camera import Camera
-from memo_ros.core.correspondence import assign_forces, contour_rays, silhouette_candidates
+from memo_ros.core.correspondence import Candidates, assign_forces, contour_rays, on_outline, outline_candidates
 from memo_ros.core.ekf import ArticulatedEKF, Measurements, UpdateReport
-from memo_ros.core.kinematic_jacobian import chain_axes, chain_membership, normal_jacobian, point_jacobian
+from memo_ros.core.kinematic_jacobian import chain_axes, chain_membership, normal_jacobian, projected_rows
 from memo_ros.core.model_nodes import model_nodes
 from memo_ros.core.motion import ConstantVelocity, ProcessNoise, coordinate_rates
-from memo_ros.core.render import render
 from memo_ros.core.rotations import rot_z, matrix_to_rotvec
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
@@ -42,13 +41,18 @@ JOINT_LIMITS: dict[str, tuple[float, float]] = {
 class TrackerSettings:
     """Noises, gates and iteration counts of the tracker (the node's parameters)."""
 
-    sigma_px: float = 2.0              # image force noise across the contour, pixels
-    sigma_rim_px: float = 6.0          # the same across a part's end, where contour smoothing rounds the tips
-    sigma_normal: float = 0.15         # normal force noise (unit vectors); 0 switches eq. 15 off
+    sigma_px: float = 1.0              # image force noise across the contour, pixels
+    sigma_rim_px: float = 3.0          # the same across a part's end, where contour smoothing rounds the tips
+    sigma_normal: float = 0.0          # normal force noise (unit vectors); 0 switches eq. 15 off (k_z from
+                                       # pixel-staircase tangents is biased; it made the arm worse)
     search_px: float = 25.0            # largest image distance of a sample to its node
     gate_sigma: float = 4.0            # Mahalanobis gate on each measurement's innovation
-    iterations: int = 4                # iterated-EKF relinearisations per frame
-    render_scale: float = 0.25         # resolution of the silhouette test rendering
+    iterations: int = 2                # iterated-EKF relinearisations per frame
+    outline_probe_px: float = 2.0      # a node is on the predicted outline when the body leaves background this far out
+    symmetric: bool = False            # every predicted-outline node also pulls on its nearest compatible sample
+    contour_smoothing: float = 2.0     # the contour node's Gaussian smoothing, px: samples it moved count less
+    smoothing_shift: bool = False      # also move samples back by the first-order shift (overshoots at thin tips)
+    limit_sigma: float = 0.02          # joint limits as soft pseudo-measurements, rad (0 = no limits)
     ring_spacing: float = 0.03         # m between node rings along a part
     min_matched_fraction: float = 0.3  # fewer matched samples than this fraction = inconsistent frame
     nis_limit: float = 30.0            # mean NIS above this = inconsistent frame
@@ -99,12 +103,19 @@ class ArticulatedTracker:
         self.reset()
 
     # ------------------------------------------------------------ state
-    def reset(self) -> None:
-        """Forget the track: the next frame with contours initialises again."""
+    def reset(self, use_initial_pose: bool = True) -> None:
+        """Forget the track: the next frame with contours initialises again, from the studio's initial
+        pose (a user reset, a bag loop) or, after a lost track, from the silhouettes."""
         self.status = WAITING
         self.stamp_ns: int | None = None
         self.bad_frames = 0
-        self.pending_pose: np.ndarray | None = self.initial_pose
+        self.pending_pose: np.ndarray | None = self.initial_pose if use_initial_pose else None
+
+    def apply_settings(self, settings: TrackerSettings) -> None:
+        """New noises, gates and limits from the next frame on; the current estimate is kept."""
+        self.settings = settings
+        self.model = ConstantVelocity(self.body, settings.process_noise)
+        self.ekf.model = self.model
 
     def set_pose(self, q: np.ndarray) -> None:
         """Use ``q`` (and zero velocity) at the next frame, like robot_localization's set_pose."""
@@ -123,7 +134,8 @@ class ArticulatedTracker:
         samples = sum(len(t) for t in contours.values())
         if not samples:
             return self._no_body(stamp_ns, start)
-        rays = {c: contour_rays(self.cameras[c], t) for c, t in contours.items()}
+        rays = {c: contour_rays(self.cameras[c], t, self.settings.contour_smoothing,
+                                     self.settings.smoothing_shift) for c, t in contours.items()}
         masks = {c: (np.ones(len(PART_NAMES), bool) if selected is None or c not in selected
                      else np.asarray(selected[c], bool)) for c in contours}
         initialised = False
@@ -132,17 +144,15 @@ class ArticulatedTracker:
             initialised = True
         else:
             self.ekf.predict((stamp_ns - self.stamp_ns) * 1e-9)
-        labels = self._render_depths(self.ekf.q, contours)
-        measure = self._measurement_function(contours, rays, masks, labels)
+        measure = self._measurement_function(contours, rays, masks)
         report = self.ekf.update(measure, self.settings.iterations, self.settings.gate_sigma)
-        self._enforce_limits()
         self.stamp_ns = stamp_ns
         matched, unselected = self._last_counts
-        consistent = (report.used >= self.settings.min_matched_fraction * samples
+        consistent = (matched >= self.settings.min_matched_fraction * samples
                       and not report.nis > self.settings.nis_limit)
         self.bad_frames = 0 if consistent else self.bad_frames + 1
         if self.bad_frames >= self.settings.lost_after:
-            self.reset()
+            self.reset(use_initial_pose=False)
             self.status = LOST
             return FrameResult(stamp_ns, LOST, samples=samples, matched=matched, report=report,
                                seconds=time.perf_counter() - start,
@@ -155,16 +165,6 @@ class ArticulatedTracker:
                            rotations, origins, samples, matched, unselected, report, initialised,
                            time.perf_counter() - start, '' if consistent else 'inconsistent frame')
 
-    def _enforce_limits(self) -> None:
-        """Project the estimate onto the joint ranges (the projection method of constrained Kalman filtering)."""
-        q = self.ekf.q[self.limit_index]
-        clipped = np.clip(q, self.limit_low, self.limit_high)
-        hit = clipped != q
-        if hit.any():
-            self.ekf.q[self.limit_index] = clipped
-            v = self.ekf.v[self.limit_index]
-            self.ekf.v[self.limit_index] = np.where(hit, 0.0, v)
-
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
         """No contour from any camera: predict while the track is young, then lose it."""
         if self.status != TRACKING:
@@ -172,7 +172,7 @@ class ArticulatedTracker:
                                reason='no contours from any camera')
         self.bad_frames += 1
         if self.bad_frames >= self.settings.lost_after:
-            self.reset()
+            self.reset(use_initial_pose=False)
             self.status = LOST
             return FrameResult(stamp_ns, LOST, seconds=time.perf_counter() - start,
                                reason=f'no camera saw the body for {self.settings.lost_after} frames')
@@ -185,17 +185,46 @@ class ArticulatedTracker:
                            reason='no contours: predicted only')
 
     # ------------------------------------------------------------ measurement model
-    def _render_depths(self, q: np.ndarray, cameras) -> dict[str, np.ndarray]:
-        rotations, origins = self.body.forward_kinematics(q)
-        scale = self.settings.render_scale
-        return {c: render(self.cameras[c], rotations, origins, self.body.semi_axes, self.body.lengths,
-                          scale=scale).depth for c in cameras}
+    def _candidates(self, cam: Camera, rays, rotations: np.ndarray, origins: np.ndarray, frame: dict) -> Candidates:
+        """The nodes that may be on an outline near the camera's samples, flagged usable where they are on the
+        predicted outline.  Which nodes, and which are usable, is decided once per frame (at the first
+        linearisation, like a per-frame visibility test) and kept through the iterations."""
+        if cam.name not in frame:
+            cand = outline_candidates(cam, self.nodes, rotations, origins)
+            near = np.all(np.isfinite(cand.uv), axis=1)
+            if len(rays.uv):      # nodes no sample can reach (twice the search radius) are never matched
+                near[near] = np.isfinite(rays.tree.query(cand.uv[near], k=1,
+                                                         distance_upper_bound=2 * self.settings.search_px)[0])
+            cand = cand.subset(near)
+            cand.usable = on_outline(cam, cand, rotations, origins, self.body.semi_axes, self.body.lengths,
+                                     self.settings.outline_probe_px)
+            order = np.argsort(cand.key)
+            frame[cam.name] = (cand.key[order], cand.usable[order])
+            return cand
+        keys, usable = frame[cam.name]
+        cand = outline_candidates(cam, self.nodes, rotations, origins, keys)
+        cand.usable = usable[np.searchsorted(keys, cand.key)]
+        return cand.subset(np.all(np.isfinite(cand.uv), axis=1))
 
-    def _measurement_function(self, contours, rays, masks, labels):
+    def _limit_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Joint limits as pseudo-measurements (soft inequality constraints), active where q leaves its range."""
+        if self.settings.limit_sigma <= 0:
+            return None
+        v = q[self.limit_index]
+        target = np.clip(v, self.limit_low, self.limit_high)
+        active = target != v
+        if not active.any():
+            return None
+        H = np.zeros((int(active.sum()), self.body.n_coordinates))
+        H[np.arange(len(H)), self.limit_index[active]] = 1.0
+        return H, target[active] - v[active], np.full(len(H), self.settings.limit_sigma)
+
+    def _measurement_function(self, contours, rays, masks):
         """measure(q) -> Measurements: the forces of eq. 14-15 linearised at q (Jacobians of eq. 9, 16)."""
         s = self.settings
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
+        frame: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
         def measure(q: np.ndarray) -> Measurements:
             rotations, origins = self.body.forward_kinematics(q)
@@ -204,24 +233,24 @@ class ArticulatedTracker:
             matched = unselected = 0
             for cam_name in contours:
                 cam = self.cameras[cam_name]
-                cand = silhouette_candidates(cam, self.nodes, rotations, origins, labels[cam_name], s.render_scale)
-                m = assign_forces(rays[cam_name], cand, self.nodes.epsilon, s.search_px)
+                cand = self._candidates(cam, rays[cam_name], rotations, origins, frame)
+                m = assign_forces(rays[cam_name], cand, self.nodes.epsilon, s.search_px, s.symmetric)
                 use = masks[cam_name][cand.part[m.node]]
                 unselected += int((~use).sum())
                 sample, node = m.sample[use], m.node[use]
-                matched += len(sample)
+                matched += len(np.unique(sample))
                 if not len(sample):
                     continue
                 parts = cand.part[node]
                 points = cand.points[node]
-                uv, J_proj = cam.project_with_jacobian(points)
-                L = point_jacobian(chain, parts, points)                      # eq. 9: L
-                Lp = J_proj @ L                                               # eq. 9: L_p = H R^-1 L
+                uv, J_proj = cam.project_with_jacobian(points)               # eq. 9: H R^-1
                 m_out = rays[cam_name].outward[sample]
-                rows_H.append(np.einsum('ni,nij->nj', m_out, Lp))
+                g = np.einsum('ni,nij->nj', m_out, J_proj)
+                rows_H.append(projected_rows(chain, parts, points, g))       # eq. 9: m^T H R^-1 L
                 rows_r.append(np.einsum('ni,ni->n', m_out, rays[cam_name].uv[sample] - uv))   # eq. 14
                 side = ~cand.rim[node]
-                rows_s.append(np.where(side, s.sigma_px, s.sigma_rim_px))
+                # the smoothing correction is itself uncertain: its size joins the noise
+                rows_s.append(np.hypot(np.where(side, s.sigma_px, s.sigma_rim_px), rays[cam_name].bias[sample]))
                 if s.sigma_normal > 0 and side.any():
                     normals = cand.normal[node][side]
                     Jn = normal_jacobian(chain, parts[side], normals, rotations[parts[side]][:, :, 2])
@@ -229,6 +258,9 @@ class ArticulatedTracker:
                     rows_r.append((rays[cam_name].k[sample][side] - normals).reshape(-1))      # eq. 15
                     rows_s.append(np.full(3 * int(side.sum()), s.sigma_normal))
             self._last_counts = (matched, unselected)
+            limits = self._limit_rows(q)
+            if limits is not None:
+                rows_H.append(limits[0]), rows_r.append(limits[1]), rows_s.append(limits[2])
             if not rows_r:
                 return Measurements.empty(n)
             return Measurements(np.concatenate(rows_H), np.concatenate(rows_r), np.concatenate(rows_s))
@@ -258,8 +290,7 @@ class ArticulatedTracker:
                 q[0:2] = centre[0:2]
             self.ekf.initialize(q, None, np.where(np.arange(len(q)) < 3, 0.3, 0.5), sigma_v)
             masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
-            labels = self._render_depths(q, contours)
-            report = self.ekf.update(self._measurement_function(contours, rays, masks, labels),
+            report = self.ekf.update(self._measurement_function(contours, rays, masks),
                                      s.init_iterations, gate=1e6)
             score = (self._last_counts[0], -report.nis if np.isfinite(report.nis) else -np.inf)
             if best is None or score > best[0]:

@@ -19,7 +19,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-SUITES = ('foundation', 'contours', 'contour-node')
+SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker')
 SIM_SCENARIO = 'studio-arm'
 SIM_FRAMES = 30
 SIM_SIZE = (640, 480)
@@ -35,7 +35,10 @@ SIM_STAGES = {
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('suite', choices=SUITES, help='what to measure: foundation = renderer and simulator; '
                         'contours = the contour pipeline per 640x480 frame, one OpenCV thread; '
-                        'contour-node = the contour_node process fed at 30 and 60 Hz over DDS')
+                        'contour-node = the contour_node process fed at 30 and 60 Hz over DDS; '
+                        'selector = camera assignment per frame, 14 parts x 3 cameras (--repeat: passes over '
+                        'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
+                        '5,000 contour points per camera (--repeat: passes over the sequence)')
     parser.add_argument('--repeat', type=int, default=20, help='timed repetitions per renderer case (default 20)')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of the table')
 
@@ -58,6 +61,12 @@ def _suite(name: str):
     if name == 'contours':
         from memo_ros.tools.bench_contours import print_contour_benchmark, run_contour_benchmark
         return (lambda args: run_contour_benchmark(repeat=args.repeat)), _with_command(print_contour_benchmark)
+    if name == 'selector':
+        from memo_ros.tools.bench_selector import print_selector_benchmark, run_selector_benchmark
+        return (lambda args: run_selector_benchmark(repeat=args.repeat)), _with_command(print_selector_benchmark)
+    if name == 'tracker':
+        from memo_ros.tools.bench_tracker import print_tracker_benchmark, run_tracker_benchmark
+        return (lambda args: run_tracker_benchmark(repeat=args.repeat)), _with_command(print_tracker_benchmark)
     if name == 'contour-node':
         from memo_ros.tools.bench_contour_node import print_node_benchmark, run_node_benchmark
         return (lambda args: run_node_benchmark()), _with_command(print_node_benchmark)

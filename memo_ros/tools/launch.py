@@ -46,7 +46,9 @@ def run(args: argparse.Namespace) -> int:
 
 def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
                    log_level: str = 'info') -> list[NodeProcess]:
-    """The processes of the graph: one contour_node per camera, in its camera's namespace."""
+    """The processes of the graph: one contour_node per camera, in its camera's namespace, and the
+    articulated tracker with its camera selector for a multi-camera studio (or one whose file configures
+    ``tracker_node``)."""
     nodes = []
     for cam in studio.camera_names:
         command = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{cam}',
@@ -54,6 +56,14 @@ def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
         if reliable_images:
             command += ['-p', 'reliable_images:=true']
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
+    if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
+        nodes.append(NodeProcess('selector_node', [sys.executable, '-m', 'memo_ros.nodes.selector_node', '--ros-args',
+                                                   '--params-file', str(path), '--log-level', log_level]))
+        nodes.append(NodeProcess('tracker_node', [sys.executable, '-m', 'memo_ros.nodes.tracker_node', '--ros-args',
+                                                  '--params-file', str(path), '--log-level', log_level]))
+    if 'walker_node' in studio.node_parameters:      # Rohr's walking tracker: the studio file configures it
+        nodes.append(NodeProcess('walker_node', [sys.executable, '-m', 'memo_ros.nodes.walker_node', '--ros-args',
+                                                 '--params-file', str(path), '--log-level', log_level]))
     return nodes
 
 

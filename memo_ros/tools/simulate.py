@@ -55,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--lighting-change', type=float, default=0.0,
                         help='amplitude of a slow global lighting change (0.1 = +-10%%)')
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--no-initial-pose', action='store_true',
+                        help="leave the subject's true starting pose out of the studio file, so the tracker "
+                             'initialises itself from the silhouettes')
     parser.add_argument('--empty-frames', type=int, help='frames of the empty scene before the subject appears '
                         '(default: 10 in the studio, 0 in the street)')
     parser.add_argument('--encoding', default='mono8', help=f'image encoding: {", ".join(ENCODINGS)}')
@@ -84,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
                       width=args.width, height=args.height,
                       options=ImagingOptions(args.noise, args.blur, args.lighting_change, args.seed),
                       encoding=args.encoding, storage=args.storage, force=args.force,
-                      progress=args.progress or sys.stderr.isatty(), empty_frames=args.empty_frames)
+                      progress=args.progress or sys.stderr.isatty(), empty_frames=args.empty_frames,
+                      initial_pose=not args.no_initial_pose)
     print(f'scenario   {args.scenario}')
     total = result.frames + result.empty_frames
     print(f'bag        {result.bag}  ({result.empty_frames} empty + {result.frames} frames '
@@ -101,7 +105,7 @@ def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: in
              frame_rate: float | None = None, width: int = 640, height: int = 480,
              options: ImagingOptions | None = None, encoding: str = 'mono8', storage: str = 'mcap',
              force: bool = False, progress: bool = False, drop: dict[str, int] | None = None,
-             empty_frames: int | None = None) -> SimulationResult:
+             empty_frames: int | None = None, initial_pose: bool = True) -> SimulationResult:
     """Simulate ``scenario_name`` into the bag ``out`` and the studio ``out.yaml``.
 
     ``drop`` maps a camera name to the frame index (counting empty frames) from which
@@ -124,8 +128,11 @@ def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: in
             raise FileExistsError(f'{out} exists already (use --force to replace it)')
         shutil.rmtree(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    # Kakadiaris & Metaxas assume the initial pose known: the studio carries the subject's first true pose
+    q0, _ = scenario.coordinates(np.zeros(1))
+    start_pose = dict(zip(body.coordinate_names, map(float, q0[0]))) if initial_pose else {}
     Studio(scenario_name.replace('-', '_'), scenario.cameras, body, scenario.frame_rate,
-           {'contour_node': scenario.contour_parameters}).save(studio_path)
+           {'contour_node': scenario.contour_parameters, **scenario.node_parameters}, start_pose).save(studio_path)
     start = time.perf_counter()
     _write_bag(scenario, body, out, options, encoding, storage, progress, drop or {})
     return SimulationResult(out, studio_path, scenario.frames, [c.name for c in scenario.cameras],

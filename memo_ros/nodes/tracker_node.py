@@ -1,0 +1,334 @@
+"""tracker_node: the articulated EKF over DDS (Kakadiaris & Metaxas §2-4).
+
+Subscribes every camera's ``/<cam>/contours`` and ``/memo/camera_assignment``,
+joins them by header stamp with a bounded wait, runs
+:class:`memo_ros.core.tracking.ArticulatedTracker` and publishes
+``/memo/joint_states``, ``/memo/body_poses``, ``/memo/markers``,
+``/memo/root_pose`` and ``/diagnostics``, all stamped with the frame's stamp.
+Services like robot_localization's: ``~/reset`` (std_srvs/Trigger) and the
+``~/set_pose`` topic (sensor_msgs/JointState with named coordinates).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState, PointCloud2
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from memo_ros.core.motion import ProcessNoise, coordinates_from_names
+from memo_ros.core.tracking import LOST, TRACKING, ArticulatedTracker, TrackerSettings
+from memo_ros.ros.assignment_messages import assignment_from_message
+from memo_ros.ros.body_messages import (joint_state_message, marker_array_message, pose_array_message,
+                                        root_pose_message)
+from memo_ros.ros.health import NodeHealth
+from memo_ros.ros.messages import stamp_to_ns
+from memo_ros.ros.params import Param, declare, validator
+from memo_ros.ros.pointcloud import pointcloud_to_array
+from memo_ros.ros.studio_params import studio_from_node
+
+PARAMS: tuple[Param, ...] = (
+    Param('sigma_px', 1.0, 'image force noise across the contour (eq. 14), pixels', 0.05, 100.0),
+    Param('sigma_rim_px', 3.0, "image force noise at a part's ends, where contour smoothing rounds tips, pixels",
+          0.05, 100.0),
+    Param('sigma_normal', 0.0, 'normal force noise (eq. 15), unit-vector units; 0 (default) switches the normal '
+          'force off: k_z from pixel-staircase tangents is biased', 0.0, 10.0),
+    Param('search_px', 25.0, 'largest image distance between a contour sample and its model node, pixels',
+          1.0, 500.0),
+    Param('gate_sigma', 4.0, 'Mahalanobis gate on each measurement innovation, standard deviations', 1.0, 100.0),
+    Param('iterations', 2, 'iterated-EKF relinearisations per frame', 1, 20),
+    Param('outline_probe_px', 2.0, 'a model node is on the predicted outline when a ray this far outside it misses '
+          'the body, pixels', 0.1, 50.0),
+    Param('contour_smoothing', 2.0, "contour_node's smoothing, pixels: samples it moved (tight curves) count less",
+          0.0, 50.0),
+    Param('limit_sigma', 0.02, 'joint ranges as soft pseudo-measurements, rad; 0 switches the limits off', 0.0, 10.0),
+    Param('process_noise_translation', 2.0, 'white-noise acceleration of the root position, m/s^2/sqrt(Hz)',
+          0.001, 100.0),
+    Param('process_noise_root_rotation', 3.0, 'white-noise angular acceleration of the root, rad/s^2/sqrt(Hz)',
+          0.001, 1000.0),
+    Param('process_noise_joint', 6.0, 'white-noise acceleration of every joint angle, rad/s^2/sqrt(Hz)',
+          0.001, 1000.0),
+    Param('nis_limit', 30.0, 'mean normalised innovation squared above which a frame is inconsistent', 1.0, 1e6),
+    Param('min_matched_fraction', 0.3, 'fewer contour samples used than this fraction makes a frame inconsistent',
+          0.0, 1.0),
+    Param('lost_after', 5, 'inconsistent or empty frames in a row before tracking is declared lost', 1, 1000),
+    Param('join_timeout', 0.15, 'longest wait for the rest of a frame (cameras, assignment) after its first '
+          'message, s', 0.001, 10.0),
+    Param('camera_timeout', 0.5, 'a camera whose newest contours are older than this (stamp time) is not waited '
+          'for, s', 0.01, 60.0),
+    Param('time_jump', 1.0, 'a stamp this far behind the last processed frame resets the filter (bag loop), s',
+          0.01, 3600.0),
+    Param('use_initial_pose', True, "start from the studio's initial_pose when it has one (else from the "
+          'silhouettes)'),
+    Param('wait_for_assignment', True, "wait (up to join_timeout) for the selector's assignment of each frame"),
+)
+
+
+@dataclass
+class PendingFrame:
+    """Messages of one stamp gathered so far."""
+
+    first_wall: float
+    contours: dict[str, np.ndarray] = field(default_factory=dict)
+    assignment: object | None = None
+
+
+def tracker_settings(p: dict) -> TrackerSettings:
+    """TrackerSettings from the node's parameter values."""
+    return TrackerSettings(
+        sigma_px=p['sigma_px'], sigma_rim_px=p['sigma_rim_px'], sigma_normal=p['sigma_normal'],
+        search_px=p['search_px'], gate_sigma=p['gate_sigma'], iterations=p['iterations'],
+        outline_probe_px=p['outline_probe_px'], contour_smoothing=p['contour_smoothing'],
+        limit_sigma=p['limit_sigma'], nis_limit=p['nis_limit'], min_matched_fraction=p['min_matched_fraction'],
+        lost_after=p['lost_after'],
+        process_noise=ProcessNoise(p['process_noise_translation'], p['process_noise_root_rotation'],
+                                   p['process_noise_joint']))
+
+
+class TrackerNode(Node):
+    """Joins contours and assignments per frame and runs the articulated EKF."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('tracker_node', **kwargs)
+        self.params = declare(self, PARAMS)
+        self.add_on_set_parameters_callback(validator(PARAMS))
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self.studio = studio_from_node(self)
+        self.body = self.studio.body
+        self.camera_names = self.studio.camera_names
+        initial = None
+        if self.studio.initial_pose and self.params['use_initial_pose']:
+            initial = coordinates_from_names(self.body, list(self.studio.initial_pose),
+                                             list(self.studio.initial_pose.values()))
+        self.tracker = ArticulatedTracker(self.body, self.studio.cameras, tracker_settings(self.params), initial)
+        self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
+        self.pending: dict[int, PendingFrame] = {}
+        self.last_processed_ns: int | None = None
+        self.first_stamp_ns: int | None = None
+        self.idle_since = time.monotonic()
+        self.newest_contours_ns: dict[str, int] = {}
+        # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten
+        reliable = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100)
+        for cam in self.camera_names:
+            self.create_subscription(PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable)
+        self.create_subscription(DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable)
+        self.create_subscription(JointState, '~/set_pose', self._on_set_pose, reliable)
+        self.pub_joints = self.create_publisher(JointState, '/memo/joint_states', 10)
+        self.pub_poses = self.create_publisher(PoseArray, '/memo/body_poses', 10)
+        self.pub_markers = self.create_publisher(MarkerArray, '/memo/markers', 10)
+        self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_timer(0.005, self._flush_expired)
+        self.health.set('tracking_state', self.tracker.status)
+        self.get_logger().info(f'tracking with cameras {", ".join(self.camera_names)}; '
+                               f'initial pose: {"studio" if initial is not None else "from the silhouettes"}')
+
+    # ------------------------------------------------------------ parameters and services
+    def _on_parameters_set(self, changes) -> None:
+        for change in changes:
+            self.params[change.name] = change.value
+        self.tracker.apply_settings(tracker_settings(self.params))
+        self.health.note('reconfigured', 'parameters changed: tracker settings updated')
+
+    def _on_reset(self, request, response):
+        self.tracker.reset()
+        self.pending.clear()
+        self.health.note('resets', 'reset requested: re-initialising on the next frame')
+        response.success = True
+        response.message = 'tracker reset; it re-initialises on the next frame with contours'
+        return response
+
+    def _on_set_pose(self, msg: JointState) -> None:
+        try:
+            base = self.tracker.ekf.q if self.tracker.status == TRACKING else None
+            q = coordinates_from_names(self.body, list(msg.name), list(msg.position), base)
+            self.tracker.set_pose(q)
+        except (KeyError, ValueError) as exc:
+            self.health.drop('bad_set_pose', f'set_pose refused: {exc}')
+            return
+        self.health.note('set_pose', 'pose set: the next frame starts from it')
+
+    # ------------------------------------------------------------ inputs
+    def _contour_callback(self, cam: str):
+        def on_contours(msg: PointCloud2) -> None:
+            self._on_contours(cam, msg)
+        return on_contours
+
+    def _frame_for(self, stamp: int, what: str) -> PendingFrame | None:
+        """The pending frame of ``stamp``; None (counted) when it is late, resets on a jump back in time."""
+        last = self.last_processed_ns
+        if last is not None and stamp <= last:
+            if last - stamp > self.params['time_jump'] * 1e9:
+                self.tracker.reset()
+                self.pending.clear()
+                self.last_processed_ns = None
+                self.first_stamp_ns = stamp
+                self.newest_contours_ns.clear()
+                self.health.note('time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset')
+            else:
+                self.health.drop('late_message', f'{what} of an already processed frame arrived late')
+                return None
+        if self.first_stamp_ns is None:
+            self.first_stamp_ns = stamp
+        frame = self.pending.get(stamp)
+        if frame is None:
+            frame = self.pending[stamp] = PendingFrame(time.monotonic())
+        return frame
+
+    def _on_contours(self, cam: str, msg: PointCloud2) -> None:
+        self.health.count(f'contours_in.{cam}')
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            table = pointcloud_to_array(msg)
+            missing = [f for f in ('x', 'y', 'tx', 'ty') if f not in (table.dtype.names or ())]
+            if missing:
+                raise ValueError(f'no field {", ".join(missing)}')
+        except ValueError as exc:
+            self.health.drop('bad_contours', f'{cam}: contours unreadable: {exc}')
+            return
+        finite = np.isfinite(table['x']) & np.isfinite(table['y']) & np.isfinite(table['tx']) & np.isfinite(table['ty'])
+        if not finite.all():
+            self.health.count('nan_contour_points', int((~finite).sum()))
+            self.health.drop('nan_contour_points', f'{cam}: {int((~finite).sum())} contour points with NaN ignored')
+            table = table[finite]
+        frame = self._frame_for(stamp, f'{cam} contours')
+        if frame is None:
+            return
+        frame.contours[cam] = table
+        self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
+        self._process_ready()
+
+    def _on_assignment(self, msg: DiagnosticArray) -> None:
+        self.health.count('assignments_in')
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            assignment = assignment_from_message(msg)
+        except (ValueError, KeyError) as exc:
+            self.health.drop('bad_assignment', f'camera assignment unreadable: {exc}')
+            return
+        unknown = [c for c in assignment.cameras if c not in self.camera_names]
+        if unknown:
+            self.health.drop('assignment_unknown_camera',
+                             f'assignment names camera(s) not in the studio: {", ".join(unknown)} (ignored)')
+        frame = self._frame_for(stamp, 'assignment')
+        if frame is None:
+            return
+        frame.assignment = assignment
+        self._process_ready()
+
+    # ------------------------------------------------------------ joining
+    def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
+        """Cameras worth waiting for: alive in the assignment, or with recent contours."""
+        if frame.assignment is not None:
+            a = frame.assignment
+            return [c for c, alive in zip(a.cameras, a.alive) if alive and c in self.camera_names]
+        window = self.params['camera_timeout'] * 1e9
+        first = self.first_stamp_ns if self.first_stamp_ns is not None else stamp
+        # a camera not heard from yet is waited for during the first camera_timeout of the stream
+        return [c for c in self.camera_names if stamp - self.newest_contours_ns.get(c, first) <= window]
+
+    def _complete(self, stamp: int, frame: PendingFrame) -> bool:
+        if self.params['wait_for_assignment'] and frame.assignment is None:
+            return False
+        return all(c in frame.contours for c in self._expected_cameras(stamp, frame))
+
+    def _process_ready(self) -> None:
+        """Process complete frames in stamp order (older incomplete ones first, as they are)."""
+        for stamp in sorted(self.pending):
+            if self._complete(stamp, self.pending[stamp]):
+                for older in [s for s in sorted(self.pending) if s <= stamp]:
+                    self._process(older, self.pending.pop(older))
+                return
+
+    def _flush_expired(self) -> None:
+        """Frames whose wait exceeded join_timeout go through with what arrived.
+
+        Only time the node spent idle counts: after a long update the queued messages get their turn first."""
+        now = time.monotonic()
+        if now - self.idle_since < self.params['join_timeout']:
+            return
+        expired = [s for s, f in self.pending.items() if now - f.first_wall > self.params['join_timeout']]
+        for stamp in sorted(expired):
+            for older in [s for s in sorted(self.pending) if s <= stamp]:
+                self._process(older, self.pending.pop(older))
+
+    # ------------------------------------------------------------ tracking
+    def _process(self, stamp: int, frame: PendingFrame) -> None:
+        self.health.count('frames')
+        missing = [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
+        if missing:
+            self.health.count('cameras_missing_in_frame', len(missing))
+        if frame.assignment is None:
+            self.health.count('frames_without_assignment')
+        if not frame.contours:
+            self.health.drop('no_contours', 'a frame had an assignment but no camera contours within join_timeout')
+            self.last_processed_ns = stamp
+            return
+        selected = None
+        if frame.assignment is not None:
+            a = frame.assignment
+            selected = {c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names}
+        result = self.tracker.step(stamp, frame.contours, selected)
+        self.idle_since = time.monotonic()
+        self.last_processed_ns = stamp
+        self.health.set('tracking_state', result.status)
+        self.health.set('cameras_in_frame', ','.join(sorted(frame.contours)))
+        self.health.set('contour_samples', result.samples)
+        self.health.set('samples_used', result.report.used)
+        self.health.set('samples_gated', result.report.gated)
+        self.health.set('samples_unselected', result.unselected)
+        self.health.set('nis', f'{result.report.nis:.3f}')
+        self.health.set('last_frame_ms', f'{1000 * result.seconds:.1f}')
+        if result.initialised:
+            self.health.note('initialisations', 'track (re)initialised')
+        if result.status == LOST:
+            self.health.drop('tracking_lost', f'tracking lost: {result.reason}; re-initialising from the silhouettes')
+            return
+        if result.status != TRACKING:
+            self.health.drop('no_body', f'no estimate: {result.reason}')
+            return
+        self._publish(stamp, result)
+        self.health.count('published')
+        self.health.ok()
+
+    def _publish(self, stamp: int, result) -> None:
+        names = list(self.body.coordinate_names)
+        self.pub_joints.publish(joint_state_message(stamp, names, result.q, result.qdot))
+        self.pub_poses.publish(pose_array_message(stamp, result.rotations, result.origins))
+        self.pub_markers.publish(marker_array_message(stamp, self.body, result.rotations, result.origins))
+        # error-state order: root translation (x, y, z) then the root's rotation increment, as REP 103 wants
+        self.pub_root.publish(root_pose_message(stamp, result.rotations[0], result.origins[0],
+                                                result.covariance[:6, :6]))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run memo_ros tracker_node``."""
+    rclpy.init(args=args if args is not None else sys.argv)
+    try:
+        node = TrackerNode()
+    except (ValueError, KeyError) as exc:
+        print(f'tracker_node: error: {exc}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
+

@@ -1,0 +1,122 @@
+"""tracker_node as its own process over real DDS: frames in, joint states out, bad input counted, resets."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import JointState, PointCloud2
+from std_srvs.srv import Trigger
+
+from memo_ros.core.body import load_default_body
+from memo_ros.core.scenarios import make_scenario
+from memo_ros.core.selection import Assignment
+from memo_ros.core.studio import Studio
+from memo_ros.ros.assignment_messages import assignment_to_message
+from memo_ros.ros.body_messages import stamp_from_ns
+from memo_ros.ros.dds import ros_session
+from memo_ros.ros.pointcloud import array_to_pointcloud
+
+from conftest import ROOT
+from test_tracking_core import _silhouette_contours
+
+BODY = load_default_body()
+T0 = 1_800_000_000 * 10 ** 9
+DT = 33_333_333
+
+
+def _start_tracker(ros_env, studio_path, *params: str) -> subprocess.Popen:
+    args = [sys.executable, '-m', 'memo_ros.nodes.tracker_node', '--ros-args', '--params-file', str(studio_path)]
+    for p in params:
+        args += ['-p', p]
+    process = subprocess.Popen(args, env=ros_env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT)
+    ros_env.processes.append(process)
+    return process
+
+
+def _cloud(table, stamp_ns: int) -> PointCloud2:
+    msg = array_to_pointcloud(table)
+    msg.header.stamp = stamp_from_ns(stamp_ns)
+    return msg
+
+
+def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path):
+    scenario = make_scenario('studio-arm', BODY)
+    q, _ = scenario.coordinates(np.arange(12) / scenario.frame_rate)
+    studio = tmp_path / 'studio.yaml'
+    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(studio)
+    process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.05')
+    cams = [c.name for c in scenario.cameras]
+    with ros_session('tracker_feeder', ros_env.domain_id) as (node, executor):
+        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
+        assign_pub = node.create_publisher(DiagnosticArray, '/memo/camera_assignment', 10)
+        joints, values = [], {}
+        node.create_subscription(JointState, '/memo/joint_states', joints.append, 100)
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name.endswith('tracker_node'):
+                    values.update({kv.key: kv.value for kv in status.values})
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        reset = node.create_client(Trigger, '/tracker_node/reset')
+
+        def spin(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+
+        def spin_until(condition, timeout=20.0) -> None:
+            end = time.monotonic() + timeout
+            while not condition() and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.1)
+            assert condition(), " ".join(f"{k}={v}" for k, v in sorted(values.items()))
+
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values())
+                   and assign_pub.get_subscription_count() > 0)
+        spin(1.0)
+        tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(len(q))]
+
+        def send(k: int, stamp: int, override: dict | None = None) -> None:
+            for cam in cams:
+                table = (override or {}).get(cam, tables[k][cam])
+                pubs[cam].publish(table if isinstance(table, PointCloud2) else _cloud(table, stamp))
+            spin(0.25)
+
+        for k in range(6):
+            send(k, T0 + k * DT)
+        spin_until(lambda: len(joints) >= 6)
+        assert list(joints[0].name) == list(BODY.coordinate_names)
+        assert [j.header.stamp.sec * 10 ** 9 + j.header.stamp.nanosec for j in joints[:6]] == \
+            [T0 + k * DT for k in range(6)]
+        hand = BODY.coordinate_names.index('shoulder_r_y')
+        assert abs(joints[5].position[hand] - q[5][hand]) < 0.1
+
+        # NaN samples are dropped and counted, the frame still goes through
+        nan_table = tables[6]['cam_front'].copy()
+        nan_table['x'][:10] = np.nan
+        send(6, T0 + 6 * DT, {'cam_front': nan_table})
+        # a cloud without the tangent fields is refused
+        bad = np.zeros(5, dtype=[('x', '<f4'), ('y', '<f4')])
+        send(7, T0 + 7 * DT, {'cam_side': _cloud(bad, T0 + 7 * DT)})
+        # an assignment naming a camera the studio lacks
+        assign_pub.publish(assignment_to_message(Assignment.all_cameras(cams + ['cam_ghost']), T0 + 8 * DT))
+        send(8, T0 + 8 * DT)
+        # a message of a frame already processed
+        pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT))
+        spin(0.3)
+        # the bag loops: stamps jump back 10 s
+        send(0, T0 - 10 * 10 ** 9)
+        spin_until(lambda: {'nan_contour_points', 'dropped.bad_contours', 'dropped.assignment_unknown_camera',
+                            'dropped.late_message', 'time_jump_resets'} <= set(values))
+        assert reset.wait_for_service(timeout_sec=10)
+        future = reset.call_async(Trigger.Request())
+        spin_until(future.done)
+        assert future.result().success
+        before = len(joints)
+        send(1, T0 - 10 * 10 ** 9 + DT)
+        spin_until(lambda: len(joints) > before)
+        spin_until(lambda: 'resets' in values)
+        assert process.poll() is None, 'the tracker must keep running'

@@ -1,0 +1,148 @@
+"""The tracker's science without DDS: motion model, Jacobian L, force assignment, information-form EKF, track states."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from memo_ros.core.body import PART_NAMES, load_default_body
+from memo_ros.core.contours import occluding_contours
+from memo_ros.core.correspondence import assign_forces, contour_rays, silhouette_candidates
+from memo_ros.core.ekf import ArticulatedEKF, Measurements
+from memo_ros.core.kinematic_jacobian import chain_axes, point_jacobian
+from memo_ros.core.model_nodes import model_nodes
+from memo_ros.core.motion import (ConstantVelocity, coordinate_rates, coordinates_from_names, local_difference,
+                                  retract, right_jacobian, tangent_rates)
+from memo_ros.core.render import render
+from memo_ros.core.rotations import rotvec_to_matrix
+from memo_ros.core.scenarios import make_scenario
+from memo_ros.core.tracking import LOST, TRACKING, WAITING, ArticulatedTracker, TrackerSettings
+
+BODY = load_default_body()
+
+
+def _silhouette_contours(cameras, q):
+    """What a perfect contour_node sees: the outer outline of the rendered body, smoothed and sampled."""
+    rotations, origins = BODY.forward_kinematics(q)
+    tables = {}
+    for cam in cameras:
+        label = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths).label
+        outlines, _ = cv2.findContours((label > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        tables[cam.name] = occluding_contours([c[:, 0, :].astype(float) for c in outlines if len(c) > 20])
+    return tables
+
+
+def _random_pose(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return BODY.neutral() + rng.normal(0.0, 0.4, BODY.n_coordinates)
+
+
+def test_right_jacobian_and_increments_are_exact():
+    r = np.array([0.7, -1.1, 0.4])
+    dr = 1e-6 * np.array([1.0, 2.0, -1.0])
+    assert np.allclose(rotvec_to_matrix(r + dr), rotvec_to_matrix(r) @ rotvec_to_matrix(right_jacobian(r) @ dr),
+                       atol=1e-11)
+    model = ConstantVelocity(BODY)
+    q, qdot = _random_pose(1), np.random.default_rng(2).normal(0, 1, BODY.n_coordinates)
+    assert np.allclose(local_difference(retract(q, 0.1 * qdot, model.groups), q, model.groups), 0.1 * qdot)
+    assert np.allclose(coordinate_rates(q, tangent_rates(q, qdot, model.groups), model.groups), qdot)
+    q_next, _ = model.predict_coordinates(q, qdot, 1e-5)
+    assert np.allclose((q_next - q) / 1e-5, qdot, atol=1e-4)     # the selector's prediction is q + q' dt
+
+
+def test_coordinates_from_names_refuses_unknown_names():
+    q = coordinates_from_names(BODY, ['root_tx', 'gait_phase'], [1.5, 0.3])
+    assert q[0] == 1.5
+    with pytest.raises(KeyError):
+        coordinates_from_names(BODY, ['elbow_q'], [0.0])
+
+
+def test_point_jacobian_matches_finite_differences_of_forward_kinematics():
+    q = _random_pose(3)
+    groups = ConstantVelocity(BODY).groups
+    rotations, origins = BODY.forward_kinematics(q)
+    local = np.random.default_rng(4).normal(0, 0.1, (len(PART_NAMES), 3))
+    points = np.einsum('pij,pj->pi', rotations, local) + origins
+    L = point_jacobian(chain_axes(BODY, q, rotations, origins), np.arange(len(PART_NAMES)), points)
+    h = 1e-6
+    for c in range(BODY.n_coordinates):
+        delta = np.zeros(BODY.n_coordinates)
+        delta[c] = h
+        r2, o2 = BODY.forward_kinematics(retract(q, delta, groups))
+        moved = np.einsum('pij,pj->pi', r2, local) + o2
+        assert np.allclose((moved - points) / h, L[:, :, c], atol=1e-5), BODY.coordinate_names[c]
+
+
+def test_force_assignment_at_the_true_pose_leaves_subpixel_residuals_and_matching_normals():
+    scenario = make_scenario('studio-arm', BODY)
+    q, _ = scenario.coordinates(np.array([1.0]))
+    rotations, origins = BODY.forward_kinematics(q[0])
+    tables = _silhouette_contours(scenario.cameras, q[0])
+    nodes = model_nodes(BODY)
+    for cam in scenario.cameras:
+        rays = contour_rays(cam, tables[cam.name])
+        depth = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths, scale=0.25).depth
+        cand = silhouette_candidates(cam, nodes, rotations, origins, depth, 0.25)
+        m = assign_forces(rays, cand, nodes.epsilon, 25.0)
+        assert len(m.sample) > 0.9 * len(rays.uv)
+        r = np.einsum('ni,ni->n', rays.outward[m.sample], rays.uv[m.sample] - cand.uv[m.node])
+        assert np.median(np.abs(r)) < 0.3 and np.percentile(np.abs(r), 95) < 1.5, cam.name
+        side = ~cand.rim[m.node]
+        # eq. 13 with the plane normal k_z oriented out of the silhouette, like the surface normal
+        assert np.median(np.einsum('ni,ni->n', rays.k[m.sample][side], cand.normal[m.node][side])) > 0.99
+
+
+def test_information_form_update_equals_the_covariance_form_for_a_linear_measurement():
+    model = ConstantVelocity(BODY)
+    ekf = ArticulatedEKF(model)
+    n = BODY.n_coordinates
+    rng = np.random.default_rng(5)
+    ekf.initialize(np.zeros(n), None, rng.uniform(0.05, 0.2, n), 0.5)
+    ekf.q[3:6] = 0.0
+    H = np.zeros((40, n))
+    H[:, 6:] = rng.normal(0, 1, (40, n - 6))          # joints only: additive coordinates, linear model
+    truth = np.zeros(n)
+    truth[6:] = rng.normal(0, 0.1, n - 6)
+    z = H @ truth
+    P = ekf.P.copy()
+    HP = np.hstack([H, np.zeros((40, n))])
+    S = HP @ P @ HP.T + 0.01 ** 2 * np.eye(40)
+    expected = (P @ HP.T @ np.linalg.solve(S, z))[:n]
+    ekf.update(lambda q: Measurements(H, z - H @ q, np.full(40, 0.01)), iterations=1, gate=1e9)
+    assert np.allclose(ekf.q, expected, atol=1e-8)
+
+
+def test_tracker_follows_the_moving_arm_from_perfect_silhouettes():
+    scenario = make_scenario('studio-arm', BODY, frames=20)
+    times = np.arange(20) / scenario.frame_rate
+    q_true, _ = scenario.coordinates(times)
+    tracker = ArticulatedTracker(BODY, scenario.cameras, initial_pose=q_true[0])
+    errors = []
+    for k, t in enumerate(times):
+        result = tracker.step(int(t * 1e9), _silhouette_contours(scenario.cameras, q_true[k]))
+        assert result.status == TRACKING
+        rotations, origins = BODY.forward_kinematics(q_true[k])
+        errors.append(1000 * np.linalg.norm(result.origins - origins, axis=1).mean())
+    assert np.mean(errors) < 10.0, errors
+
+
+def test_no_contours_loses_the_track_and_contours_bring_it_back():
+    scenario = make_scenario('studio-arm', BODY, frames=10)
+    q0, _ = scenario.coordinates(np.zeros(1))
+    settings = TrackerSettings(lost_after=3)
+    tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=q0[0])
+    assert tracker.step(0, {c.name: np.zeros(0, dtype=[('x', 'f4')]) for c in scenario.cameras}).status == WAITING
+    contours = _silhouette_contours(scenario.cameras, q0[0])
+    assert tracker.step(1, contours).status == TRACKING
+    states = [tracker.step(2 + k, {}).status for k in range(3)]
+    assert states == [TRACKING, TRACKING, LOST]
+    back = tracker.step(10, contours)
+    assert back.status == TRACKING and back.initialised
+
+
+def test_set_pose_refuses_non_finite_values():
+    tracker = ArticulatedTracker(BODY, make_scenario('studio-arm', BODY).cameras)
+    q = BODY.neutral()
+    q[4] = np.nan
+    with pytest.raises(ValueError):
+        tracker.set_pose(q)
