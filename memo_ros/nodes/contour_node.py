@@ -106,8 +106,8 @@ class ContourNode(Node):
         self.health.count('frames_in')
         stamp = stamp_to_ns(msg.header.stamp)
         if self.camera_info is None:
-            self.health.drop('no_camera_info', 'image arrived before any camera_info')
-            return
+            # contours are in pixels and need no intrinsics: go on (the size check waits for camera_info)
+            self.health.note('no_camera_info', 'image before any camera_info: processed without the size check')
         if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
             self.pipeline.reset()
             self.health.note('time_jump_resets', 'timestamps went backwards (bag loop?): frame history reset')
@@ -120,7 +120,7 @@ class ContourNode(Node):
             self.health.drop(exc.reason, f'bad image: {exc}')
             return
         info = self.camera_info
-        if (msg.width, msg.height) != (info.width, info.height):
+        if info is not None and (msg.width, msg.height) != (info.width, info.height):
             self.health.drop('size_mismatch', f'image {msg.width}x{msg.height} differs from camera_info '
                                               f'{info.width}x{info.height}')
             return
