@@ -38,7 +38,7 @@ class SelectionSettings:
     """The selector's tunables (the node's parameters), validated on construction."""
 
     vi_threshold: float = 0.2            # §4: part i visible from camera k when VI(i, k) >= 0.2
-    max_cameras_per_part: int = 2        # 1..3 cameras kept per part, best observability first
+    max_cameras_per_part: int = 3        # 1..3 cameras kept per part, best observability first (3: every visible one)
     render_scale: float = 0.25           # label images at this fraction of the camera resolution
     observability_norm: str = 'norm_of_sum'   # §4's || sum dx ||, or 'sum_of_norms'
     camera_timeout_s: float = 0.5        # a camera silent for longer (in stamps) is excluded

@@ -114,7 +114,7 @@ def run_case(bag: Path, reliability: str, rate: float, domain_id: int, env: dict
             node.create_subscription(PointCloud2, contour_topic, on_contours, qos_profile('reliable', 10))
             node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
             # camera_info always reliable: the node subscribes it reliably, so a best-effort
-            # camera_info publisher would never match (every image dropped as no_camera_info)
+            # camera_info publisher would never match (no image would get its size check)
             feeds = ([(image_topic, info_topic)] if reliability == 'reliable' else [(image_topic,), (info_topic,)])
 
             def after_publish(item) -> None:

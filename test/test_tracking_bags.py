@@ -1,0 +1,105 @@
+"""The whole graph over real DDS on simulated bags: contour nodes, selector and tracker as processes, scored
+against the simulator's truth (issue 5's "Done when")."""
+from __future__ import annotations
+
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from memo_ros.core.imaging import ImagingOptions
+from memo_ros.core.metrics import FrameErrors
+from memo_ros.ros.assignment_messages import assignment_from_message
+from memo_ros.ros.dds import ros_session
+from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
+from memo_ros.tools.simulate import simulate
+
+HEIGHT_MM = 1750.0
+RATE = 0.5        # half real time: three contour nodes, the selector and the tracker share two cores
+
+
+@dataclass
+class Replay:
+    errors: FrameErrors
+    out: Path
+    truth_frames: int
+    missing: list[int]           # indices of truth frames without an estimate
+
+
+def _replay(ros_env, tmp_path: Path, scenario: str, noise: float = 3.0, drop: dict | None = None) -> Replay:
+    """Simulate ``scenario``, launch the graph, play the bag into it, record its outputs, score them."""
+    sim = simulate(scenario, tmp_path / 'bag', options=ImagingOptions(noise=noise), drop=drop)
+    launch = ros_env.start('launch', sim.studio, '--reliable-images')
+    out = tmp_path / 'out'
+    recorder = ros_env.start('bag', 'record', '-o', out, *ESTIMATE_TOPICS, '/memo/camera_assignment',
+                             '--idle-timeout', 8, '--duration', 300)
+    inputs = [f'/{c}/{t}' for c in sim.cameras for t in ('image_raw', 'camera_info')]
+    with ros_session('graph_probe', ros_env.domain_id) as (node, _):
+        deadline = time.monotonic() + 60
+        wanted = [f'/{c}/contours' for c in sim.cameras] + ['/memo/camera_assignment', '/memo/joint_states']
+        while not (all(node.count_publishers(t) and node.count_subscribers(t) for t in wanted)
+                   and all(node.count_subscribers(t) for t in inputs)):
+            assert time.monotonic() < deadline, 'the graph did not come up'
+            assert launch.poll() is None, launch.communicate()[1]
+            time.sleep(0.3)
+    time.sleep(4.0)                 # seen by the probe; let the peers match each other too
+    played = ros_env.run('bag', 'play', sim.bag, '--topics', *inputs, '--wait-for-subscribers', 1,
+                         '--rate', RATE, timeout=240)
+    assert played.returncode == 0, played.stderr
+    recorder.communicate(timeout=120)
+    assert launch.poll() is None, 'a node of the graph died'
+    launch.send_signal(signal.SIGINT)
+    launch.communicate(timeout=30)
+    truth = load_track(sim.bag, TRUTH_TOPICS)
+    errors = match_and_measure(truth, load_track(out, ESTIMATE_TOPICS), 1_000_000)
+    stamps = sorted(truth.origins)
+    missing = [k for k, s in enumerate(stamps) if s not in set(errors.stamps_ns.tolist())]
+    return Replay(errors, out, len(stamps), missing)
+
+
+def _summary(r: Replay) -> str:
+    e = r.errors
+    return (f'{len(e.stamps_ns)}/{r.truth_frames} frames (missing {r.missing}), MPJPE mean {e.mpjpe_mm.mean():.1f} mm, worst frame '
+            f'{e.mpjpe_mm.max():.1f} mm, worst joint {e.joint_mm.max():.1f} mm, worst axis {e.axis_deg.max():.2f} deg')
+
+
+@pytest.mark.xfail(strict=True, reason='out of reach so far: the left forearm and hand hang where no camera sees '
+                   'their flexion (inside the torso and thigh outlines from the side, along the front camera\'s '
+                   'axis, under the shoulder from above); segmentation bias of <1 px moves them: worst joint '
+                   '69 mm and axis 12 deg against 17.5 mm and 3.6 deg (MPJPE mean 10 mm)')
+def test_studio_arm_noise_free_within_one_percent_of_height_and_the_papers_orientation(ros_env, tmp_path):
+    r = _replay(ros_env, tmp_path, 'studio-arm', noise=0.0)
+    assert len(r.errors.stamps_ns) == r.truth_frames, _summary(r)
+    assert r.errors.joint_mm.max() <= 0.01 * HEIGHT_MM and r.errors.axis_deg.max() <= 3.6, _summary(r)
+
+
+def test_studio_arm_at_default_noise(ros_env, tmp_path):
+    r = _replay(ros_env, tmp_path, 'studio-arm')
+    assert len(r.errors.stamps_ns) == r.truth_frames, _summary(r)
+    assert r.errors.mpjpe_mm.mean() <= 15.0, _summary(r)
+
+
+def test_studio_walk_with_legs_occluding_each_other(ros_env, tmp_path):
+    r = _replay(ros_env, tmp_path, 'studio-walk')
+    assert len(r.errors.stamps_ns) == r.truth_frames, _summary(r)
+    assert r.errors.mpjpe_mm.mean() <= 25.0 and r.errors.mpjpe_mm.max() <= 80.0, _summary(r)
+
+
+def test_tracking_continues_on_two_cameras_when_one_is_lost_halfway(ros_env, tmp_path):
+    lost_at = 10 + 45            # counting the 10 empty-studio frames: the subject's frame 45 of 90
+    r = _replay(ros_env, tmp_path, 'studio-arm', drop={'cam_top': lost_at})
+    assert len(r.errors.stamps_ns) == r.truth_frames, _summary(r)
+    after = r.errors.mpjpe_mm[45:]
+    assert after.mean() <= 35.0, f'after the loss: MPJPE mean {after.mean():.1f} mm; {_summary(r)}'
+    assignments = [assignment_from_message(m.message) for m in read_messages(r.out, ['/memo/camera_assignment'])]
+    stamps = [stamp_to_ns(m.message.header.stamp) for m in read_messages(r.out, ['/memo/camera_assignment'])]
+    first_lost = sorted(r.errors.stamps_ns)[45]
+    top = assignments[0].cameras.index('cam_top')
+    late = [a for a, s in zip(assignments, stamps) if s > first_lost + 1_000_000_000]   # past the camera timeout
+    assert late and all(not a.alive[top] and not a.selected[:, top].any() for a in late)
+    assert any(a.alive[top] for a, s in zip(assignments, stamps) if s < first_lost)
+    assert np.isfinite(after).all()
