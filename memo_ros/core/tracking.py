@@ -27,6 +27,7 @@ from memo_ros.core.motion import ConstantVelocity, ProcessNoise, coordinate_rate
 from memo_ros.core.rotations import rot_z, matrix_to_rotvec
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
+REFERENCE_SPACING_PX = 2.0     # the sample spacing the noise parameters refer to (contour_node's contour_step)
 
 # anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend)
 JOINT_LIMITS: dict[str, tuple[float, float]] = {
@@ -225,6 +226,8 @@ class ArticulatedTracker:
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
         frame: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        # noise per unit of contour length: denser samples each carry less independent information
+        density = {c: np.sqrt(REFERENCE_SPACING_PX / sample_spacing(t)) for c, t in contours.items()}
 
         def measure(q: np.ndarray) -> Measurements:
             rotations, origins = self.body.forward_kinematics(q)
@@ -250,7 +253,8 @@ class ArticulatedTracker:
                 rows_r.append(np.einsum('ni,ni->n', m_out, rays[cam_name].uv[sample] - uv))   # eq. 14
                 side = ~cand.rim[node]
                 # the smoothing correction is itself uncertain: its size joins the noise
-                rows_s.append(np.hypot(np.where(side, s.sigma_px, s.sigma_rim_px), rays[cam_name].bias[sample]))
+                sigma = np.where(side, s.sigma_px, s.sigma_rim_px) * density[cam_name]
+                rows_s.append(np.hypot(sigma, rays[cam_name].bias[sample]))
                 if s.sigma_normal > 0 and side.any():
                     normals = cand.normal[node][side]
                     Jn = normal_jacobian(chain, parts[side], normals, rotations[parts[side]][:, :, 2])
@@ -296,6 +300,15 @@ class ArticulatedTracker:
             if best is None or score > best[0]:
                 best = (score, self.ekf.q.copy())
         self.ekf.initialize(best[1], None, sigma_q, sigma_v)
+
+
+def sample_spacing(table: np.ndarray) -> float:
+    """Median pixel distance between consecutive samples of the same contour (REFERENCE_SPACING_PX if unknown)."""
+    if len(table) < 2:
+        return REFERENCE_SPACING_PX
+    same = table['contour'][1:] == table['contour'][:-1] if 'contour' in table.dtype.names else np.ones(len(table) - 1, bool)
+    steps = np.hypot(np.diff(table['x']), np.diff(table['y']))[same]
+    return float(np.median(steps)) if len(steps) and np.median(steps) > 0 else REFERENCE_SPACING_PX
 
 
 def triangulate_centre(cameras: list[Camera], tables: list[np.ndarray]) -> np.ndarray | None:
