@@ -17,7 +17,8 @@ def _graph(context):
     reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
     studio = load_studio(path)
     nodes = [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
-                  parameters=[path, {'reliable_images': reliable}], output='screen')
+                  parameters=[path, {'reliable_images': reliable, 'image_queue_depth': 100 if reliable else 5}],
+                  output='screen')
              for camera in studio.camera_names]
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
         nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',

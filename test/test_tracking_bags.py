@@ -58,7 +58,9 @@ def _replay(ros_env, tmp_path: Path, scenario: str, noise: float = 3.0, drop: di
     errors = match_and_measure(truth, load_track(out, ESTIMATE_TOPICS), 1_000_000)
     stamps = sorted(truth.origins)
     missing = [k for k, s in enumerate(stamps) if s not in set(errors.stamps_ns.tolist())]
-    return Replay(errors, out, len(stamps), missing)
+    replay = Replay(errors, out, len(stamps), missing)
+    print(f'{scenario} noise {noise}: {_summary(replay)}')          # the figures, with pytest -s or -rA
+    return replay
 
 
 def _summary(r: Replay) -> str:

@@ -12,8 +12,6 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -23,6 +21,7 @@ from memo_ros.core.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
+from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare, validator
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
@@ -157,21 +156,7 @@ class ContourNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run memo_ros contour_node``."""
-    rclpy.init(args=args if args is not None else sys.argv)
-    try:
-        node = ContourNode()
-    except ValueError as exc:
-        print(f'contour_node: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node('contour_node', ContourNode, args)
 
 
 if __name__ == '__main__':

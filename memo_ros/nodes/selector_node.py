@@ -19,10 +19,7 @@ import time
 from collections import deque
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
@@ -34,6 +31,7 @@ from memo_ros.core.studio import Studio
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
+from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare, validator
 from memo_ros.ros.studio_params import studio_from_node
 
@@ -282,21 +280,7 @@ class SelectorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run memo_ros selector_node``."""
-    rclpy.init(args=args if args is not None else sys.argv)
-    try:
-        node = SelectorNode()
-    except (ValueError, KeyError, ParameterException) as exc:
-        print(f'selector_node: error: {" ".join(str(exc).split())}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node('selector_node', SelectorNode, args)
 
 
 if __name__ == '__main__':

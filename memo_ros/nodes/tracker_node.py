@@ -15,10 +15,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
@@ -32,6 +30,7 @@ from memo_ros.ros.body_messages import (joint_state_message, marker_array_messag
                                         root_pose_message)
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
+from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare, validator
 from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.ros.studio_params import studio_from_node
@@ -312,21 +311,7 @@ class TrackerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run memo_ros tracker_node``."""
-    rclpy.init(args=args if args is not None else sys.argv)
-    try:
-        node = TrackerNode()
-    except (ValueError, KeyError) as exc:
-        print(f'tracker_node: error: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node('tracker_node', TrackerNode, args)
 
 
 if __name__ == '__main__':

@@ -19,6 +19,7 @@ from pathlib import Path
 from memo_ros.core.studio import Studio, studio_path
 
 STOP_GRACE_S = 5.0
+REPLAY_IMAGE_QUEUE = 100     # image queue of the contour nodes when a bag is replayed into them
 
 
 @dataclass
@@ -54,7 +55,8 @@ def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
         command = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{cam}',
                    '--params-file', str(path), '--log-level', log_level]
         if reliable_images:
-            command += ['-p', 'reliable_images:=true']
+            # replay: a burst of images re-sent to a late-matching reader must not overflow its queue
+            command += ['-p', 'reliable_images:=true', '-p', f'image_queue_depth:={REPLAY_IMAGE_QUEUE}']
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
         nodes.append(NodeProcess('selector_node', [sys.executable, '-m', 'memo_ros.nodes.selector_node', '--ros-args',

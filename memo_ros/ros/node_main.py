@@ -1,0 +1,29 @@
+"""The one ``main`` every node shares: init, build, spin, and a one-line error for a refused configuration."""
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+
+def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Spin the node ``make_node`` builds until Ctrl-C or shutdown; exit 2 with one line if it refuses to start."""
+    rclpy.init(args=args if args is not None else sys.argv)
+    try:
+        node = make_node()
+    except (ValueError, KeyError, ParameterException) as exc:
+        print(f'{name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
