@@ -34,6 +34,7 @@ class Scenario:
     description: str
     empty_frames: int = 0                 # frames of the empty scene before the subject appears (clean plate)
     contour_parameters: dict = field(default_factory=dict)   # contour_node parameters suited to the scene
+    node_parameters: dict = field(default_factory=dict)      # other nodes' parameters, by node name (walker_node)
 
     def coordinates(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Generalized coordinates (N, n) and gait phase (N,) or None at ``times`` (s from the start)."""
@@ -132,12 +133,15 @@ def make_scenario(name: str, body: Body, width: int = 640, height: int = 480,
                         line_walk(body, start=-0.5 * speed * n / rate, speed=speed, cycle_length=1.6),
                         "Rohr's street: one camera 11 m from a path parallel to the image plane",
                         0, {'segmenter': 'background', 'threshold': 4.0, 'background_frames': 15,
-                            'keep_regions': 'largest'})
+                            'keep_regions': 'largest'},
+                        {'walker_node': dict(WALKER_PARAMETERS)})
     raise ValueError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
 
 
 SCENARIOS = ('studio-arm', 'studio-walk', 'street-walk')
 # a studio session starts with the empty studio, so the background can be learnt before the subject enters
+# the street's walker_node (Rohr's MEMO): its presence in a studio file makes `memo-ros launch` start it
+WALKER_PARAMETERS = {'init_first': 2, 'init_last': 14}
 STUDIO_EMPTY_FRAMES = 10
 
 

@@ -19,7 +19,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker')
+SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker', 'walker')
 SIM_SCENARIO = 'studio-arm'
 SIM_FRAMES = 30
 SIM_SIZE = (640, 480)
@@ -38,7 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'contour-node = the contour_node process fed at 30 and 60 Hz over DDS; '
                         'selector = camera assignment per frame, 14 parts x 3 cameras (--repeat: passes over '
                         'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
-                        '5,000 contour points per camera (--repeat: passes over the sequence)')
+                        '5,000 contour points per camera (--repeat: passes over the sequence); walker = Rohr\'s walker per '
+                        'frame on a street-walk, initialization and tracking, against the paper\'s exhaustive grid '
+                        '(--repeat: passes over the sequence)')
     parser.add_argument('--repeat', type=int, default=20, help='timed repetitions per renderer case (default 20)')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of the table')
 
@@ -67,6 +69,9 @@ def _suite(name: str):
     if name == 'tracker':
         from memo_ros.tools.bench_tracker import print_tracker_benchmark, run_tracker_benchmark
         return (lambda args: run_tracker_benchmark(repeat=args.repeat)), _with_command(print_tracker_benchmark)
+    if name == 'walker':
+        from memo_ros.tools.bench_walker import print_walker_benchmark, run_walker_benchmark
+        return (lambda args: run_walker_benchmark(repeat=args.repeat)), _with_command(print_walker_benchmark)
     if name == 'contour-node':
         from memo_ros.tools.bench_contour_node import print_node_benchmark, run_node_benchmark
         return (lambda args: run_node_benchmark()), _with_command(print_node_benchmark)

@@ -63,6 +63,10 @@ def run(args: argparse.Namespace) -> int:
         from memo_ros.tools.plots import write_plots
         summary['plots'] = [str(p) for p in write_plots(args.plots, truth, estimate, errors, body, studio,
                                                         args.truth)]
+        from memo_ros.tools.walker_plots import has_walker_measurements, write_walker_plots
+        if has_walker_measurements(topics):      # Rohr's walker: Figs. 26, 27 and 19
+            summary['plots'] += [str(p) for p in write_walker_plots(args.plots, args.estimate, truth, estimate,
+                                                                    body, studio, args.truth)]
     if args.json:
         print(json.dumps(summary))
         return 0
