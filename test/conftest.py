@@ -40,6 +40,13 @@ class RosEnv(dict):
         self.processes.append(process)
         return process
 
+    def start_node(self, node: str, *ros_args: str) -> subprocess.Popen:
+        """Start ``python -m memo_ros.nodes.NODE --ros-args ROS_ARGS`` (stdout and stderr merged, as text)."""
+        process = subprocess.Popen([sys.executable, '-m', f'memo_ros.nodes.{node}', '--ros-args', *map(str, ros_args)],
+                                   env=self, cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        self.processes.append(process)
+        return process
+
     def run(self, *args, timeout: float = 30.0) -> subprocess.CompletedProcess:
         """Run `memo-ros ARGS` to completion."""
         process = self.start(*args)

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -14,17 +13,10 @@ from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.tools.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.simulate import simulate
 
-from conftest import ROOT
 
 
 def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
-    args = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{camera}']
-    for p in params:
-        args += ['-p', p]
-    process = subprocess.Popen(args, env=ros_env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT)
-    ros_env.processes.append(process)
-    return process
+    return ros_env.start_node('contour_node', '-r', f'__ns:=/{camera}', *[a for p in params for a in ('-p', p)])
 
 
 def _wait_for_graph(ros_env, topics, timeout=20.0):

@@ -5,7 +5,6 @@ import io
 import re
 import signal
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -30,7 +29,6 @@ from memo_ros.tools.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.echo import CsvPrinter, YamlPrinter
 from memo_ros.tools.simulate import simulate
 
-from conftest import ROOT
 
 STUDIO = studio_path('studio_orthogonal')
 NS = 1_000_000_000
@@ -38,14 +36,7 @@ ARM = ('upper_arm_r', 'forearm_r', 'hand_r')
 
 
 def _start_node(ros_env, studio, *args: str) -> subprocess.Popen:
-    command = [sys.executable, '-m', 'memo_ros.nodes.selector_node', '--ros-args']
-    if studio is not None:
-        command += ['--params-file', str(studio)]
-    command += list(args)
-    process = subprocess.Popen(command, env=ros_env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT)
-    ros_env.processes.append(process)
-    return process
+    return ros_env.start_node('selector_node', *(['--params-file', str(studio)] if studio is not None else []), *args)
 
 
 def _stop(process: subprocess.Popen) -> str:

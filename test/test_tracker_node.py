@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 
 import numpy as np
@@ -19,7 +18,6 @@ from memo_ros.ros.body_messages import stamp_from_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
-from conftest import ROOT
 from test_tracking_core import _silhouette_contours
 
 BODY = load_default_body()
@@ -28,13 +26,7 @@ DT = 33_333_333
 
 
 def _start_tracker(ros_env, studio_path, *params: str) -> subprocess.Popen:
-    args = [sys.executable, '-m', 'memo_ros.nodes.tracker_node', '--ros-args', '--params-file', str(studio_path)]
-    for p in params:
-        args += ['-p', p]
-    process = subprocess.Popen(args, env=ros_env, cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT)
-    ros_env.processes.append(process)
-    return process
+    return ros_env.start_node('tracker_node', '--params-file', studio_path, *[a for p in params for a in ('-p', p)])
 
 
 def _cloud(table, stamp_ns: int) -> PointCloud2:
