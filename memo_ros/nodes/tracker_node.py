@@ -20,14 +20,15 @@ from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from memo_ros.core.motion import ProcessNoise, coordinates_from_names
 from memo_ros.core.tracking import LOST, TRACKING, ArticulatedTracker, TrackerSettings
 from memo_ros.ros.assignment_messages import assignment_from_message
-from memo_ros.ros.body_messages import (joint_state_message, marker_array_message, pose_array_message,
-                                        root_pose_message)
+from memo_ros.ros.body_messages import (PROCESSED_TOPIC, joint_state_message, marker_array_message,
+                                        pose_array_message, processed_message, root_pose_message)
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
@@ -125,6 +126,7 @@ class TrackerNode(Node):
         self.pub_poses = self.create_publisher(PoseArray, '/memo/body_poses', 10)
         self.pub_markers = self.create_publisher(MarkerArray, '/memo/markers', 10)
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
+        self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, 100)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_timer(0.005, self._flush_expired)
         self.health.set('tracking_state', self.tracker.status)
@@ -262,6 +264,11 @@ class TrackerNode(Node):
 
     # ------------------------------------------------------------ tracking
     def _process(self, stamp: int, frame: PendingFrame) -> None:
+        """Track one joined frame, then say it is done (whatever came of it)."""
+        outcome = self._track(stamp, frame)
+        self.pub_processed.publish(processed_message(stamp, outcome))
+
+    def _track(self, stamp: int, frame: PendingFrame) -> str:
         self.health.count('frames')
         missing = [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
         if missing:
@@ -271,7 +278,7 @@ class TrackerNode(Node):
         if not frame.contours:
             self.health.drop('no_contours', 'a frame had an assignment but no camera contours within join_timeout')
             self.last_processed_ns = stamp
-            return
+            return 'no_contours'
         selected = None
         if frame.assignment is not None:
             a = frame.assignment
@@ -291,13 +298,14 @@ class TrackerNode(Node):
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:
             self.health.drop('tracking_lost', f'tracking lost: {result.reason}; re-initialising from the silhouettes')
-            return
+            return LOST
         if result.status != TRACKING:
             self.health.drop('no_body', f'no estimate: {result.reason}')
-            return
+            return result.status
         self._publish(stamp, result)
         self.health.count('published')
         self.health.ok()
+        return TRACKING
 
     def _publish(self, stamp: int, result) -> None:
         names = list(self.body.coordinate_names)

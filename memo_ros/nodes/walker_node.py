@@ -19,6 +19,7 @@ from geometry_msgs.msg import PolygonStamped, PoseArray, PoseWithCovarianceStamp
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
+from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from memo_ros.core.camera import Camera
@@ -27,8 +28,8 @@ from memo_ros.core.rotations import rot_z
 from memo_ros.core.similarity import SimilarityParams
 from memo_ros.core.walking_kalman import KalmanParams
 from memo_ros.core.walking_tracker import TRACKING, WalkerSettings, WalkingTracker
-from memo_ros.ros.body_messages import (joint_state_message, marker_array_message, pose_array_message,
-                                        root_pose_message)
+from memo_ros.ros.body_messages import (PROCESSED_TOPIC, joint_state_message, marker_array_message,
+                                        pose_array_message, processed_message, root_pose_message)
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
@@ -153,6 +154,7 @@ class WalkerNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, '/memo/markers', OUTPUT_DEPTH)
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', OUTPUT_DEPTH)
         self.pub_measurement = self.create_publisher(JointState, '/memo/walker/measurement', OUTPUT_DEPTH)
+        self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, OUTPUT_DEPTH)
         height = (f'{self.settings.person_height:.3f} m' if self.settings.person_height
                   else "the walking model's mean head-top height")
         self.get_logger().info(f'walking tracker on {name}: H = {height}, '
@@ -224,18 +226,23 @@ class WalkerNode(Node):
 
     # ---------------------------------------------------------- processing
     def _process(self, stamp_ns: int, edges_msg: PointCloud2, box_msg: PolygonStamped) -> None:
+        """Track one joined frame, then say it is done (whatever came of it)."""
+        outcome = self._walk(stamp_ns, edges_msg, box_msg)
+        self.pub_processed.publish(processed_message(stamp_ns, outcome))
+
+    def _walk(self, stamp_ns: int, edges_msg: PointCloud2, box_msg: PolygonStamped) -> str:
         if self.last_stamp is not None and stamp_ns < self.last_stamp:
             self.tracker = None
             self.health.note('time_jump_resets', 'timestamps went backwards (bag loop?): walker reset')
         elif self.last_stamp is not None and stamp_ns == self.last_stamp:
             self.health.drop('duplicate_stamp', 'frame with the stamp of the previous one')
-            return
+            return 'duplicate_stamp'
         try:
             corners = box_corners(box_msg)
             edges = edge_array(edges_msg)
         except ValueError as exc:
             self.health.drop('bad_input', f'malformed input: {exc}')
-            return
+            return 'bad_input'
         self.last_stamp = stamp_ns
         if self.tracker is None:
             self.tracker = WalkingTracker(self.studio.body, self.camera, self.settings)
@@ -247,6 +254,7 @@ class WalkerNode(Node):
             self._publish_measurement(result)
         if result.estimate is not None and self.tracker.state == TRACKING:
             self._publish_estimate(stamp_ns, result.estimate, result.covariance)
+        return str(self.tracker.state)
 
     def _account(self, result, elapsed: float) -> None:
         """Counters per outcome: every frame without an estimate is counted under its reason."""

@@ -17,6 +17,7 @@ from memo_ros.core.rotations import matrix_to_quat
 
 WORLD = 'world'
 MARKER_NAMESPACE = 'memo_body'
+PROCESSED_TOPIC = '/memo/processed'   # std_msgs/Header per frame a tracker finished, published or not
 
 
 def stamp_from_ns(stamp_ns: int) -> Time:
@@ -26,6 +27,11 @@ def stamp_from_ns(stamp_ns: int) -> Time:
 
 def world_header(stamp_ns: int) -> Header:
     return Header(stamp=stamp_from_ns(stamp_ns), frame_id=WORLD)
+
+
+def processed_message(stamp_ns: int, outcome: str) -> Header:
+    """The frame ``stamp_ns`` is done (``outcome`` in frame_id: tracking, lost, waiting, dropped...): replay's back-pressure."""
+    return Header(stamp=stamp_from_ns(stamp_ns), frame_id=outcome)
 
 
 def joint_state_message(stamp_ns: int, names, positions, velocities=None) -> JointState:

@@ -17,6 +17,7 @@ COMMANDS = {
     'bag': ('memo_ros.tools.bag', 'inspect, play and record rosbag2 files over DDS'),
     'echo': ('memo_ros.tools.echo', 'print messages of a topic as YAML (or CSV rows)'),
     'launch': ('memo_ros.tools.launch', 'start the graph for a studio: one contour_node per camera'),
+    'replay': ('memo_ros.tools.replay', 'run a bag through the live graph and record its outputs'),
     'evaluate': ('memo_ros.tools.evaluate', 'score estimated poses against ground truth'),
     'benchmark': ('memo_ros.tools.benchmark', 'measure speed of the core and tools'),
 }

@@ -1,0 +1,196 @@
+"""Replay a bag through the live graph: launch it, play the cameras into it, record what it publishes.
+
+``memo-ros replay BAG --out OUT`` starts ``memo-ros launch STUDIO --reliable-images``
+(the studio defaults to ``BAG.yaml``, as the simulator writes it), plays the
+bag's image and camera_info topics over DDS and records every output topic to
+the mcap bag OUT.  With ``--rate 0`` (the default) playback is paced by the
+graph itself: before frame t+1 goes out, the player waits until the tracker
+said frame t is done on ``/memo/processed`` (or ``--frame-timeout`` passed), so
+the result does not depend on the machine's load.  ``--rate R`` plays with the
+recorded timing instead.  It exits when the input is exhausted and the graph
+has drained; the node logs go to OUT.log.
+"""
+from __future__ import annotations
+
+import argparse
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from memo_ros.core.studio import Studio
+
+OUTPUT_TOPICS = ('/memo/joint_states', '/memo/body_poses', '/memo/markers', '/memo/root_pose',
+                 '/memo/camera_assignment', '/memo/walker/measurement', '/memo/processed', '/diagnostics')
+INPUT_SUFFIXES = ('/image_raw', '/camera_info')
+GRAPH_TIMEOUT_S = 60.0
+DRAIN_IDLE_S = 2.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bag', type=Path, help='input bag with /<cam>/image_raw and /<cam>/camera_info')
+    parser.add_argument('--studio', type=Path, help='studio YAML (default: BAG.yaml beside the bag)')
+    parser.add_argument('--out', '-o', type=Path, required=True, help='output bag directory (must not exist)')
+    parser.add_argument('--rate', type=float, default=0.0,
+                        help='0 (default): paced by the graph (back-pressure); R > 0: recorded timing x R')
+    parser.add_argument('--frame-timeout', type=float, default=2.0,
+                        help='with back-pressure, longest wait for a frame to be done, s (default 2)')
+
+
+def run(args: argparse.Namespace) -> int:
+    from memo_ros.tools.cli import CliError
+    studio_file = args.studio or args.bag.with_name(args.bag.name + '.yaml')
+    if not args.bag.exists():
+        raise CliError(f'no bag at {args.bag}')
+    if not studio_file.is_file():
+        raise CliError(f'no studio file at {studio_file} (give --studio)')
+    if args.out.exists():
+        raise CliError(f'{args.out} exists already')
+    if args.rate < 0 or args.frame_timeout <= 0:
+        raise CliError('--rate must not be negative and --frame-timeout must be positive')
+    cameras = Studio.load(studio_file).camera_names
+    report = replay(args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout)
+    print(f"replayed   {report['frames']} frames of {args.bag} in {report['seconds']:.1f} s "
+          f"({report['frames'] / max(report['seconds'], 1e-9):.1f} frames/s)")
+    print(f"processed  {report['processed']} frames reported done by the graph, "
+          f"{report['timeouts']} waits timed out")
+    print(f"recorded   {args.out}: " + ', '.join(f'{t} {n}' for t, n in sorted(report['recorded'].items())))
+    print(f"node logs  {report['log']}")
+    return 0 if report['graph_ok'] else 1
+
+
+def frame_stamp(data: bytes) -> int:
+    """Header stamp (ns) of a CDR message whose first field is a std_msgs/Header (Image, CameraInfo)."""
+    sec, nanosec = struct.unpack_from('<iI', data, 4)        # after the 4-byte encapsulation header
+    return sec * 1_000_000_000 + nanosec
+
+
+class Pacer:
+    """Back-pressure: before a new frame goes out, wait until the graph said the previous one is done."""
+
+    def __init__(self, timeout: float) -> None:
+        self.timeout = timeout
+        self.done_ns = -1
+        self.current_ns: int | None = None
+        self.frames = 0
+        self.processed = 0
+        self.timeouts = 0
+        self._cond = threading.Condition()
+
+    def on_processed(self, msg) -> None:
+        stamp = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
+        with self._cond:
+            self.processed += 1
+            self.done_ns = max(self.done_ns, stamp)
+            self._cond.notify_all()
+
+    def before_publish(self, item, pace: bool) -> None:
+        stamp = frame_stamp(item.data)
+        if self.current_ns is not None and stamp <= self.current_ns:
+            return
+        if pace and self.current_ns is not None:
+            with self._cond:
+                if not self._cond.wait_for(lambda: self.done_ns >= self.current_ns, self.timeout):
+                    self.timeouts += 1
+        self.current_ns = stamp
+        self.frames += 1
+
+
+def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: float = 0.0,
+           frame_timeout: float = 2.0) -> dict:
+    """Launch the graph for ``studio_file``, play ``bag`` into it, record its outputs to ``out``; a report."""
+    from std_msgs.msg import Header
+
+    from memo_ros.ros.dds import ros_session
+    from memo_ros.tools.bag import BagPlayer, BagRecorder, PlayOptions, RecordOptions
+    from memo_ros.tools.progress import Progress
+
+    log_path = out.with_name(out.name + '.log')
+    out.parent.mkdir(parents=True, exist_ok=True)
+    inputs = [f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES]
+    pacer = Pacer(frame_timeout)
+    with open(log_path, 'w', encoding='utf-8') as log, ros_session('memo_replay') as (node, executor):
+        launch = subprocess.Popen([sys.executable, '-m', 'memo_ros.tools.cli', 'launch', str(studio_file),
+                                   '--reliable-images'], stdout=log, stderr=subprocess.STDOUT)
+        stop = threading.Event()
+        spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
+        try:
+            node.create_subscription(Header, '/memo/processed', pacer.on_processed, 100)
+            recorder = BagRecorder(node, out, RecordOptions(topics=OUTPUT_TOPICS))
+            spinner.start()
+            player = BagPlayer(node, bag, PlayOptions(rate=rate, topics=inputs, wait_for_subscribers=1,
+                                                       wait_timeout=GRAPH_TIMEOUT_S),
+                               before_publish=lambda item: pacer.before_publish(item, rate == 0))
+            _wait_for_graph(node, recorder, player, launch)
+            start = time.monotonic()
+            total = sum(1 for _ in player._messages())
+            progress = Progress(total, 'replay', sys.stderr.isatty())
+            player.after_publish = lambda item: progress.update(item.index + 1)
+            player.play()
+            player.flush()
+            progress.close()
+            if rate == 0 and pacer.current_ns is not None:       # the last frame
+                with pacer._cond:
+                    pacer._cond.wait_for(lambda: pacer.done_ns >= pacer.current_ns, frame_timeout)
+            _drain(recorder)
+            seconds = time.monotonic() - start
+            recorded = dict(recorder.counts)
+            graph_ok = launch.poll() is None
+            player.close()
+            recorder.close()
+        finally:
+            stop.set()
+            if launch.poll() is None:
+                launch.send_signal(2)
+                try:
+                    launch.wait(15)
+                except subprocess.TimeoutExpired:
+                    launch.kill()
+    return {'frames': pacer.frames, 'processed': pacer.processed, 'timeouts': pacer.timeouts, 'seconds': seconds,
+            'recorded': recorded, 'log': str(log_path), 'graph_ok': graph_ok}
+
+
+def _spin(executor, stop: threading.Event, recorder) -> None:
+    """Spin the replay node; every half second let the recorder subscribe output topics that appeared."""
+    next_discovery = 0.0
+    while not stop.is_set():
+        executor.spin_once(timeout_sec=0.05)
+        if time.monotonic() >= next_discovery:
+            recorder.discover()
+            next_discovery = time.monotonic() + 0.5
+
+
+def _wait_for_graph(node, recorder, player, launch) -> None:
+    """Until every node subscribes the inputs and the recorder has the tracker's outputs."""
+    from memo_ros.tools.cli import CliError
+    deadline = time.monotonic() + GRAPH_TIMEOUT_S
+    while True:
+        ready = not player.unmatched_topics() and '/memo/joint_states' in recorder.subscriptions
+        if ready:
+            break
+        if launch.poll() is not None:
+            raise CliError('the graph stopped before it was up (see the node log)')
+        if time.monotonic() > deadline:
+            raise CliError(f'the graph did not come up within {GRAPH_TIMEOUT_S:.0f} s; missing: '
+                           f'{", ".join(player.unmatched_topics()) or "/memo/joint_states"}')
+        time.sleep(0.2)
+    time.sleep(2.0)          # seen from here; let the nodes' readers match the player's writers too
+
+
+def _drain(recorder, idle: float = DRAIN_IDLE_S, limit: float = 30.0) -> None:
+    """Wait until no output arrived for ``idle`` s (the graph has drained), at most ``limit`` s."""
+    def outputs() -> int:        # /diagnostics comes every second whatever happens: not a sign of work
+        return sum(n for topic, n in recorder.counts.items() if topic != '/diagnostics')
+
+    end = time.monotonic() + limit
+    last = outputs()
+    quiet_since = time.monotonic()
+    while time.monotonic() < end:
+        time.sleep(0.2)
+        now = outputs()
+        if now != last:
+            last, quiet_since = now, time.monotonic()
+        elif time.monotonic() - quiet_since >= idle:
+            return
