@@ -22,7 +22,7 @@ from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
-from memo_ros.ros.params import Param, declare, validator
+from memo_ros.ros.params import Param, declare
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
 PARAMS = (
@@ -68,9 +68,7 @@ class ContourNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('contour_node', **kwargs)
-        self.params = declare(self, PARAMS)
-        self.add_on_set_parameters_callback(validator(PARAMS))
-        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self.params = declare(self, PARAMS, on_change=self._on_parameters_set)
         camera = self.get_namespace().strip('/') or 'camera'
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id=camera)
         self.pipeline = ContourPipeline(pipeline_settings(self.params))
@@ -90,9 +88,7 @@ class ContourNode(Node):
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
 
-    def _on_parameters_set(self, changes) -> None:
-        for change in changes:
-            self.params[change.name] = change.value
+    def _on_parameters_set(self) -> None:
         self.pipeline = ContourPipeline(pipeline_settings(self.params))
         self.health.note('reconfigured', 'parameters changed: pipeline rebuilt')
 

@@ -32,7 +32,7 @@ from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
-from memo_ros.ros.params import Param, declare, validator
+from memo_ros.ros.params import Param, declare
 from memo_ros.ros.studio_params import studio_from_node
 
 ASSIGNMENT_TOPIC = '/memo/camera_assignment'
@@ -85,10 +85,9 @@ class SelectorNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('selector_node', **kwargs)
-        self.params = declare(self, PARAMS)
+        # the core refuses combinations the per-parameter ranges cannot, with the reason
+        self.params = declare(self, PARAMS, on_change=self._on_parameters_set, check=selection_settings)
         self.settings = selection_settings(self.params)
-        self.add_on_set_parameters_callback(self._validate)
-        self.add_post_set_parameters_callback(self._on_parameters_set)
         self.studio: Studio = studio_from_node(self)
         self.body = self.studio.body
         self.names = self.studio.camera_names
@@ -116,20 +115,7 @@ class SelectorNode(Node):
                                f'cameras per part, {self.settings.observability_norm}')
 
     # ------------------------------------------------------------ parameters
-    def _validate(self, changes):
-        """Refuse out-of-range values (the table) and settings the core refuses, with the reason."""
-        result = validator(PARAMS)(changes)
-        if not result.successful:
-            return result
-        try:
-            selection_settings(self.params | {c.name: c.value for c in changes})
-        except ValueError as exc:
-            result.successful, result.reason = False, str(exc)
-        return result
-
-    def _on_parameters_set(self, changes) -> None:
-        for change in changes:
-            self.params[change.name] = change.value
+    def _on_parameters_set(self) -> None:
         self.settings = selection_settings(self.params)
         self.selector = CameraSelector(self.body, self.studio.cameras, self.settings)
         self.liveness.timeout_s = self.settings.camera_timeout_s

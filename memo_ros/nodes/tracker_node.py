@@ -32,7 +32,7 @@ from memo_ros.ros.body_messages import (PROCESSED_TOPIC, joint_state_message, ma
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
-from memo_ros.ros.params import Param, declare, validator
+from memo_ros.ros.params import Param, declare
 from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.ros.studio_params import studio_from_node
 
@@ -99,9 +99,7 @@ class TrackerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('tracker_node', **kwargs)
-        self.params = declare(self, PARAMS)
-        self.add_on_set_parameters_callback(validator(PARAMS))
-        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self.params = declare(self, PARAMS, on_change=self._on_parameters_set)
         self.studio = studio_from_node(self)
         self.body = self.studio.body
         self.camera_names = self.studio.camera_names
@@ -134,9 +132,7 @@ class TrackerNode(Node):
                                f'initial pose: {"studio" if initial is not None else "from the silhouettes"}')
 
     # ------------------------------------------------------------ parameters and services
-    def _on_parameters_set(self, changes) -> None:
-        for change in changes:
-            self.params[change.name] = change.value
+    def _on_parameters_set(self) -> None:
         self.tracker.apply_settings(tracker_settings(self.params))
         self.health.note('reconfigured', 'parameters changed: tracker settings updated')
 
@@ -281,7 +277,6 @@ class TrackerNode(Node):
             return 'no_contours'
         selected = None
         if frame.assignment is not None:
-            a = frame.assignment
             selected = {c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names}
         result = self.tracker.step(stamp, frame.contours, selected)
         self.idle_since = time.monotonic()

@@ -33,7 +33,7 @@ from memo_ros.ros.body_messages import (PROCESSED_TOPIC, joint_state_message, ma
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
-from memo_ros.ros.params import Param, declare, validator
+from memo_ros.ros.params import Param, declare
 from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.ros.studio_params import studio_from_node
 
@@ -77,11 +77,17 @@ PARAMS: tuple[Param, ...] = (
 )
 
 
-def walker_settings(params: dict, frame_rate: float) -> WalkerSettings:
-    """The core settings from this node's parameters (defaults for any not given)."""
+def check_parameters(params: dict) -> None:
+    """Refuse the combinations the per-parameter ranges cannot (ValueError with the reason)."""
     p = {q.name: q.default for q in PARAMS} | dict(params)
     if p['init_last'] <= p['init_first']:
         raise ValueError(f"init_last ({p['init_last']}) must come after init_first ({p['init_first']})")
+
+
+def walker_settings(params: dict, frame_rate: float) -> WalkerSettings:
+    """The core settings from this node's parameters (defaults for any not given)."""
+    check_parameters(params)
+    p = {q.name: q.default for q in PARAMS} | dict(params)
     kalman = KalmanParams(q_x_dot=p['q_x_dot'], q_pose_dot=p['q_pose_dot'], r_x=p['r_x'], r_y=p['r_y'],
                           r_pose=p['r_pose'])
     similarity = SimilarityParams(c_l=p['c_l'], c_d=p['c_d'], c_r=p['c_r'], sigma_phi=p['sigma_phi'],
@@ -125,9 +131,7 @@ class WalkerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('walker_node', **kwargs)
-        self.params = declare(self, PARAMS)
-        self.add_on_set_parameters_callback(validator(PARAMS))
-        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self.params = declare(self, PARAMS, on_change=self._on_parameters_set, check=check_parameters)
         self.studio = studio_from_node(self)
         name = self.params['camera'] or (self.studio.camera_names[0] if len(self.studio.cameras) == 1 else '')
         if not name:
@@ -161,14 +165,8 @@ class WalkerNode(Node):
                                f'initialization images {self.settings.init_first}-{self.settings.init_last}')
 
     # ------------------------------------------------------------ inputs
-    def _on_parameters_set(self, changes) -> None:
-        for change in changes:
-            self.params[change.name] = change.value
-        try:
-            self.settings = walker_settings(self.params, self.studio.frame_rate)
-        except ValueError as exc:                 # a combination the per-parameter ranges cannot refuse
-            self.health.note('bad_parameters', f'parameters not applied: {exc}')
-            return
+    def _on_parameters_set(self) -> None:
+        self.settings = walker_settings(self.params, self.studio.frame_rate)
         self.tracker = None                 # rebuilt with the new settings at the next frame
         self.health.note('reconfigured', 'parameters changed: walker restarts its initialization')
 

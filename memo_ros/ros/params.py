@@ -8,6 +8,7 @@ README's parameter table.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
@@ -49,8 +50,15 @@ class Param:
         return desc
 
 
-def declare(node: Node, params: tuple[Param, ...]) -> dict:
-    """Declare ``params`` on ``node``; return their values; raise ValueError naming any refused value."""
+def declare(node: Node, params: tuple[Param, ...], on_change: Callable[[], None] | None = None,
+            check: Callable[[dict], object] | None = None) -> dict:
+    """Declare ``params`` on ``node`` and return their values, a dict kept current at runtime.
+
+    A value out of its range, or a combination ``check(values)`` refuses by raising
+    ValueError, is refused at start (ValueError) and at runtime (set_parameters
+    fails with the reason); an accepted change updates the dict, then ``on_change()``
+    rebuilds whatever the node derives from it.
+    """
     values = {}
     for p in params:
         value = node.declare_parameter(p.name, p.default, p.descriptor()).value
@@ -58,11 +66,24 @@ def declare(node: Node, params: tuple[Param, ...]) -> dict:
         if problem:
             raise ValueError(problem)
         values[p.name] = value
+    if check is not None:
+        check(values)
+    combined = None if check is None else (lambda changes: check(values | changes))
+    node.add_on_set_parameters_callback(validator(params, combined))
+
+    def apply(changes) -> None:
+        for change in changes:
+            if change.name in values:
+                values[change.name] = change.value
+        if on_change is not None:
+            on_change()
+
+    node.add_post_set_parameters_callback(apply)
     return values
 
 
-def validator(params: tuple[Param, ...]):
-    """An on-set-parameters callback refusing out-of-range values with a reason."""
+def validator(params: tuple[Param, ...], check: Callable[[dict], object] | None = None):
+    """An on-set-parameters callback refusing out-of-range values, and combinations ``check`` refuses, with a reason."""
     table = {p.name: p for p in params}
 
     def callback(changes) -> SetParametersResult:
@@ -73,6 +94,11 @@ def validator(params: tuple[Param, ...]):
             problem = p.check(change.value)
             if problem:
                 return SetParametersResult(successful=False, reason=problem)
+        if check is not None:
+            try:
+                check({c.name: c.value for c in changes if c.name in table})
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
     return callback
