@@ -23,10 +23,10 @@ EXTRA_STATE_NAMES = ('gait_phase',)   # JointState entries that are not body coo
 
 
 def rotation_groups(body: Body) -> np.ndarray:
-    """Start indices of the rotation-vector triples in ``q``: the root's and every ball joint's (G,)."""
+    """Indices (G, 3) of the rotation-vector triples in ``q``: the root's and every ball joint's."""
     starts = [body.coordinate_index('root_rx')]
     starts += [body.coordinate_index(f'{j.name}_x') for j in body.joints if j.axes == 'ball']
-    return np.array(starts, int)
+    return np.array(starts, int)[:, None] + np.arange(3)
 
 
 def right_jacobian(r: np.ndarray) -> np.ndarray:
@@ -44,43 +44,34 @@ def right_jacobian(r: np.ndarray) -> np.ndarray:
 
 def retract(q: np.ndarray, delta: np.ndarray, groups: np.ndarray) -> np.ndarray:
     """q (+) delta: additive for scalar coordinates, R(r) exp(delta) for rotation groups; batched over rows."""
-    out = np.asarray(q, float) + delta
-    if len(groups):
-        idx = groups[:, None] + np.arange(3)
-        r = np.asarray(q, float)[..., idx]
-        d = np.asarray(delta, float)[..., idx]
-        out[..., idx] = matrix_to_rotvec(rotvec_to_matrix(r) @ rotvec_to_matrix(d))
+    q, delta = np.asarray(q, float), np.asarray(delta, float)
+    out = q + delta
+    out[..., groups] = matrix_to_rotvec(rotvec_to_matrix(q[..., groups]) @ rotvec_to_matrix(delta[..., groups]))
     return out
 
 
 def local_difference(q_to: np.ndarray, q_from: np.ndarray, groups: np.ndarray) -> np.ndarray:
     """The increment delta with q_from (+) delta = q_to (inverse of :func:`retract`)."""
-    out = np.asarray(q_to, float) - q_from
-    if len(groups):
-        idx = groups[:, None] + np.arange(3)
-        r_to = rotvec_to_matrix(np.asarray(q_to, float)[..., idx])
-        r_from = rotvec_to_matrix(np.asarray(q_from, float)[..., idx])
-        out[..., idx] = matrix_to_rotvec(np.swapaxes(r_from, -1, -2) @ r_to)
+    q_to, q_from = np.asarray(q_to, float), np.asarray(q_from, float)
+    out = q_to - q_from
+    r_to, r_from = rotvec_to_matrix(q_to[..., groups]), rotvec_to_matrix(q_from[..., groups])
+    out[..., groups] = matrix_to_rotvec(np.swapaxes(r_from, -1, -2) @ r_to)
     return out
 
 
 def coordinate_rates(q: np.ndarray, v: np.ndarray, groups: np.ndarray) -> np.ndarray:
     """Time derivatives of the coordinates from tangent rates: r' = J_r(r)^-1 omega."""
     out = np.array(v, float)
-    if len(groups):
-        idx = groups[:, None] + np.arange(3)
-        jr = right_jacobian(np.asarray(q, float)[..., idx])
-        out[..., idx] = np.linalg.solve(jr, np.asarray(v, float)[..., idx][..., None])[..., 0]
+    jr = right_jacobian(np.asarray(q, float)[..., groups])
+    out[..., groups] = np.linalg.solve(jr, out[..., groups][..., None])[..., 0]
     return out
 
 
 def tangent_rates(q: np.ndarray, qdot: np.ndarray, groups: np.ndarray) -> np.ndarray:
     """Tangent rates from the coordinates' time derivatives: omega = J_r(r) r'."""
     out = np.array(qdot, float)
-    if len(groups):
-        idx = groups[:, None] + np.arange(3)
-        jr = right_jacobian(np.asarray(q, float)[..., idx])
-        out[..., idx] = (jr @ np.asarray(qdot, float)[..., idx][..., None])[..., 0]
+    jr = right_jacobian(np.asarray(q, float)[..., groups])
+    out[..., groups] = (jr @ out[..., groups][..., None])[..., 0]
     return out
 
 
