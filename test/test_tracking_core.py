@@ -1,13 +1,12 @@
 """The tracker's science without DDS: motion model, Jacobian L, force assignment, information-form EKF, track states."""
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
 from memo_ros.core.body import PART_NAMES, load_default_body
-from memo_ros.core.contours import occluding_contours
-from memo_ros.core.correspondence import assign_forces, contour_rays, silhouette_candidates
+from memo_ros.core.contours import occluding_contours, silhouette_outlines
+from memo_ros.core.correspondence import assign_forces, contour_rays, on_outline, outline_candidates
 from memo_ros.core.ekf import ArticulatedEKF, Measurements
 from memo_ros.core.kinematic_jacobian import chain_axes, point_jacobian
 from memo_ros.core.model_nodes import model_nodes
@@ -27,8 +26,7 @@ def _silhouette_contours(cameras, q):
     tables = {}
     for cam in cameras:
         label = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths).label
-        outlines, _ = cv2.findContours((label > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        tables[cam.name] = occluding_contours([c[:, 0, :].astype(float) for c in outlines if len(c) > 20])
+        tables[cam.name] = occluding_contours(silhouette_outlines(label > 0))
     return tables
 
 
@@ -81,8 +79,8 @@ def test_force_assignment_at_the_true_pose_leaves_subpixel_residuals_and_matchin
     nodes = model_nodes(BODY)
     for cam in scenario.cameras:
         rays = contour_rays(cam, tables[cam.name])
-        depth = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths, scale=0.25).depth
-        cand = silhouette_candidates(cam, nodes, rotations, origins, depth, 0.25)
+        cand = outline_candidates(cam, nodes, rotations, origins)    # on the outline by the exact ray test
+        cand = cand.subset(on_outline(cam, cand, rotations, origins, BODY.semi_axes, BODY.lengths))
         m = assign_forces(rays, cand, nodes.epsilon, 25.0)
         assert len(m.sample) > 0.9 * len(rays.uv)
         r = np.einsum('ni,ni->n', rays.outward[m.sample], rays.uv[m.sample] - cand.uv[m.node])

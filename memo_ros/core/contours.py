@@ -25,7 +25,8 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from memo_ros.core.edges import EDGE_DTYPE, edge_lines_in_boxes
-from memo_ros.core.segmentation import BackgroundSegmenter, Region, Segmentation, Segmenter, SegmenterSettings
+from memo_ros.core.segmentation import (BackgroundSegmenter, Region, Segmentation, Segmenter, SegmenterSettings,
+                                        select_regions)
 
 # one row per contour sample; the same layout as the /<cam>/contours PointCloud2 fields
 CONTOUR_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('tx', '<f4'), ('ty', '<f4'), ('contour', '<u4')])
@@ -77,7 +78,7 @@ def smooth_closed_contour(outline: np.ndarray, step: float = 2.0, smoothing: flo
     m = len(samples)
     if m < MIN_SMOOTH_SAMPLES:
         return samples, _polygon_tangents(samples)
-    spacing = _perimeter(samples) / m                      # arc length per sample (about ``step``)
+    spacing = perimeter(samples) / m                      # arc length per sample (about ``step``)
     frequency = np.fft.fftfreq(m, d=spacing)              # cycles per pixel of arc length
     spectrum = np.fft.fft(samples[:, 0] + 1j * samples[:, 1])
     spectrum *= np.exp(-0.5 * (2.0 * np.pi * frequency * float(smoothing)) ** 2)
@@ -108,10 +109,16 @@ def _respace(xy: np.ndarray, tangent: np.ndarray, step: float) -> tuple[np.ndarr
     return out_xy, t / norm[:, None]
 
 
-def _perimeter(p: np.ndarray) -> float:
+def perimeter(p: np.ndarray) -> float:
     """Length of a closed polyline."""
     d = np.diff(np.vstack([p, p[:1]]), axis=0)
     return float(np.hypot(d[:, 0], d[:, 1]).sum())
+
+
+def silhouette_outlines(mask: np.ndarray, min_area: int = 200) -> list[np.ndarray]:
+    """Outer outlines (float pixels) of every region of a binary mask, kept as contour_node keeps them."""
+    _, regions = select_regions(mask, min_area, keep='all')
+    return [r.outline.astype(float) for r in regions]
 
 
 def occluding_contours(outlines: list[np.ndarray], step: float = 2.0, smoothing: float = 2.0,
@@ -223,4 +230,4 @@ class ContourPipeline:
 
 
 __all__ = ['CONTOUR_DTYPE', 'EDGE_DTYPE', 'ContourPipeline', 'PipelineResult', 'PipelineSettings',
-           'occluding_contours', 'resample_closed', 'smooth_closed_contour']
+           'occluding_contours', 'perimeter', 'resample_closed', 'silhouette_outlines', 'smooth_closed_contour']

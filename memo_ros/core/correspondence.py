@@ -29,7 +29,6 @@ from memo_ros.core.camera import Camera
 from memo_ros.core.model_nodes import ModelNodes, fan_alignment
 
 NEIGHBOURS = 8             # nearest projected candidates examined per contour sample
-OCCLUSION_TOLERANCE_M = 0.05   # a surface this much nearer than a node at its pixel hides it (depth-image test)
 RAY_TOLERANCE_M = 0.01     # the same for the exact ray test
 RIM_VIEW_COS = 0.35        # a rim node may be on the outline when its fan holds a normal within ~20 deg of perpendicular
 OUTLINE_PROBE_PX = 2.0     # a node is on the outline when the body leaves background this far outside it
@@ -237,21 +236,6 @@ def on_outline(camera: Camera, cand: Candidates, rotations: np.ndarray, origins:
     return ~hidden & ~covered & np.all(np.isfinite(cand.uv), axis=1)
 
 
-def silhouette_candidates(camera: Camera, nodes: ModelNodes, rotations: np.ndarray, origins: np.ndarray,
-                          depth: np.ndarray | None = None, depth_scale: float = 1.0,
-                          semi_axes: np.ndarray | None = None, lengths: np.ndarray | None = None,
-                          probe_px: float = OUTLINE_PROBE_PX) -> Candidates:
-    """The candidates on the predicted silhouette: exact ray tests when the part shapes are given,
-    else the occlusion test against a rendered depth image (if any)."""
-    cand = outline_candidates(camera, nodes, rotations, origins)
-    if semi_axes is not None and lengths is not None:
-        return cand.subset(on_outline(camera, cand, rotations, origins, semi_axes, lengths, probe_px))
-    visible = np.all(np.isfinite(cand.uv), axis=1)
-    if depth is not None:
-        visible &= ~_occluded(depth, depth_scale, cand.uv, camera.world_to_camera(cand.points)[:, 2])
-    return cand.subset(visible)
-
-
 def _generator(nodes: ModelNodes, centre_local: np.ndarray, idx: np.ndarray, sign: np.ndarray) -> np.ndarray:
     """Generator angle of the rings starting at idx, on the side ``sign`` (+1: phi + arccos, -1: phi - arccos),
     for the camera centre in each ring's part frame; NaN when the centre is inside the cylinder."""
@@ -260,17 +244,6 @@ def _generator(nodes: ModelNodes, centre_local: np.ndarray, idx: np.ndarray, sig
     with np.errstate(invalid='ignore', divide='ignore'):
         half = np.where(rho > 1.0, np.arccos(np.clip(1.0 / rho, -1.0, 1.0)), np.nan)
     return np.arctan2(uy, ux) + sign * half
-
-
-def _occluded(depth: np.ndarray, scale: float, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """True where the rendered depth image shows a surface clearly in front of the point (occlusion test)."""
-    h, w = depth.shape
-    col = np.round((uv[:, 0] + 0.5) * scale - 0.5).astype(int)
-    row = np.round((uv[:, 1] + 0.5) * scale - 0.5).astype(int)
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    out = np.zeros(len(uv), bool)
-    out[inside] = depth[row[inside], col[inside]] < z[inside] - OCCLUSION_TOLERANCE_M
-    return out
 
 
 @dataclass

@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from memo_ros.core.motion import ConstantVelocity, local_difference, retract
+from memo_ros.core.motion import ConstantVelocity, retract
 
 
 @dataclass
@@ -108,7 +108,3 @@ class ArticulatedEKF:
             self.P = np.linalg.inv(info)
             self.P = 0.5 * (self.P + self.P.T)
         return report
-
-    def correction(self, q_from: np.ndarray) -> np.ndarray:
-        """Local increment from ``q_from`` to the current estimate (for diagnostics)."""
-        return local_difference(self.q, q_from, self.model.groups)

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import time
 
-import cv2
 import numpy as np
 
 from memo_ros.core.body import load_default_body
-from memo_ros.core.contours import occluding_contours
+from memo_ros.core.contours import occluding_contours, perimeter, silhouette_outlines
 from memo_ros.core.render import render
 from memo_ros.core.scenarios import make_scenario
 from memo_ros.core.tracking import ArticulatedTracker, TrackerSettings
@@ -27,16 +26,14 @@ def _outlines(scenario, body, q) -> dict[str, list[np.ndarray]]:
     rotations, origins = body.forward_kinematics(q)
     out = {}
     for cam in scenario.cameras:
-        label = render(cam, rotations, origins, body.semi_axes, body.lengths).label
-        found, _ = cv2.findContours((label > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        out[cam.name] = [c[:, 0, :].astype(float) for c in found if len(c) > 20]
+        out[cam.name] = silhouette_outlines(render(cam, rotations, origins, body.semi_axes, body.lengths).label > 0)
     return out
 
 
 def _resampled(outlines: list[np.ndarray], count: int) -> np.ndarray:
     """Contour samples of the outlines with about ``count`` samples in all."""
-    perimeter = sum(float(np.sum(np.hypot(*np.diff(np.vstack([o, o[:1]]), axis=0).T))) for o in outlines)
-    return occluding_contours(outlines, step=max(perimeter / count, 0.05), smoothing=2.0)
+    length = sum(perimeter(o) for o in outlines)
+    return occluding_contours(outlines, step=max(length / count, 0.05), smoothing=2.0)
 
 
 def run_tracker_benchmark(repeat: int = 1, settings: TrackerSettings | None = None) -> dict:
