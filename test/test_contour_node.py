@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import pointcloud_to_array
@@ -110,3 +110,73 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
         assert int(values['processed']) == processed_before + 3 and int(values['frames_in']) == before + 7
         assert int(values['dropped.total']) == dropped_before + 4
         assert node_process.poll() is None
+
+
+def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_background(ros_env, tmp_path):
+    background_file = tmp_path / 'cam_bg_background.png'
+    params = ('background_frames:=3', f'background_file:={background_file}', 'min_region_area:=20')
+    rng = np.random.default_rng(0)
+    empty = rng.integers(90, 110, (48, 64), dtype=np.uint8)
+    person = empty.copy()
+    person[10:40, 20:34] = 200
+
+    def image(pixels: np.ndarray, sec: int) -> Image:
+        msg = Image(encoding='mono8', width=64, height=48, step=64, data=pixels.tobytes())
+        msg.header.stamp.sec = sec
+        return msg
+
+    def info(sec: int) -> CameraInfo:
+        msg = CameraInfo(width=64, height=48, distortion_model='plumb_bob')
+        msg.header.stamp.sec = sec
+        return msg
+
+    def run_node(frames, first_sec: int) -> tuple[dict, list]:
+        """Start the node, feed (pixels or None for a lost image) frames with a camera_info each, stop it."""
+        process = _start_node(ros_env, 'cam_bg', *params)
+        values: dict[str, str] = {}
+        contours = []
+        try:
+            with ros_session('background_feeder', ros_env.domain_id) as (node, executor):
+                image_pub = node.create_publisher(Image, '/cam_bg/image_raw', 10)
+                info_pub = node.create_publisher(CameraInfo, '/cam_bg/camera_info', 10)
+                node.create_subscription(PointCloud2, '/cam_bg/contours', contours.append, 100)
+
+                def on_diagnostics(msg: DiagnosticArray) -> None:
+                    for status in msg.status:
+                        if status.hardware_id == 'cam_bg':
+                            values.update({kv.key: kv.value for kv in status.values})
+                node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+                deadline = time.monotonic() + 15
+                while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+                    executor.spin_once(timeout_sec=0.1)
+                    assert time.monotonic() < deadline, 'contour_node did not appear'
+                time.sleep(1.0)
+                for k, pixels in enumerate(frames):
+                    info_pub.publish(info(first_sec + k))
+                    if pixels is not None:
+                        image_pub.publish(image(pixels, first_sec + k))
+                    end = time.monotonic() + 0.15
+                    while time.monotonic() < end:
+                        executor.spin_once(timeout_sec=0.05)
+                end = time.monotonic() + 15
+                while int(values.get('processed', 0)) < sum(f is not None for f in frames) and time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.1)
+                time.sleep(1.1)
+                end = time.monotonic() + 2
+                while time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.1)
+        finally:
+            process.send_signal(2)
+            process.communicate(timeout=15)
+        return values, contours
+
+    # first run: learns the empty scene, saves it; two images never arrive (their camera_info does)
+    values, contours = run_node([empty, empty, empty, person, None, person, None, person], 1)
+    assert background_file.is_file()
+    assert int(values['dropped.image_lost']) == 2, values
+    assert int(values['processed']) == 6 and int(values['warming_up']) == 3, values
+    assert len(pointcloud_to_array(contours[-1])) > 20
+    # restarted with the person in view: the saved background is used, no learning, contours at once
+    values, contours = run_node([person, person], 20)
+    assert 'warming_up' not in values, values
+    assert len(contours) == 2 and all(len(pointcloud_to_array(c)) > 20 for c in contours)

@@ -197,6 +197,12 @@ class ContourPipeline:
             raise ValueError('set_background needs the background segmenter')
         self.segmenter.method.set_background(background)
 
+    @property
+    def background(self) -> np.ndarray | None:
+        """The background segmenter's learnt (or given) background; None while learning or for change detection."""
+        method = self.segmenter.method
+        return method.background if isinstance(method, BackgroundSegmenter) else None
+
     def process(self, grey: np.ndarray) -> PipelineResult:
         """Run one grey uint8 (H, W) frame through every stage."""
         s = self.settings

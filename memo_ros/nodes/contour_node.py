@@ -9,8 +9,11 @@ four corners in pixels, empty when nobody is seen) and, on request,
 """
 from __future__ import annotations
 
+import os
 import sys
+from pathlib import Path
 
+import cv2
 import numpy as np
 from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.node import Node
@@ -20,6 +23,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from memo_ros.core.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
 from memo_ros.ros.health import NodeHealth
+from memo_ros.ros.lost_frames import LostFrameCounter
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare
@@ -31,6 +35,9 @@ PARAMS = (
     Param('threshold', 4.0, 'threshold T of Rohr eq. 1, grey levels, raised to the frame\'s noise floor '
           '(about 4 against a background, 12 against the previous frame)', 0.5, 255.0),
     Param('background_frames', 10, 'frames the background segmenter learns from before it segments', 1, 10000),
+    Param('background_file', '', 'PNG where the learnt background is saved and, when it exists at start, loaded '
+          'from instead of learning (a restarted node must not learn the person into it); empty: off',
+          read_only=True),
     Param('cleanup_delete_below', 3, 'cleanup: a flagged pixel with fewer flagged 3x3 neighbours is deleted',
           0, 8),
     Param('cleanup_fill_above', 5, 'cleanup: an unflagged pixel with more flagged 3x3 neighbours is marked', 0, 8),
@@ -50,6 +57,7 @@ PARAMS = (
           'it best effort (a reliable subscription cannot match a best-effort publisher)', read_only=True),
     Param('image_queue_depth', 5, 'image subscription queue depth', 1, 1000, read_only=True),
 )
+INFO_QUEUE_DEPTH = 100      # camera_info is small: a deep queue keeps every frame's announcement
 
 
 def pipeline_settings(params: dict) -> PipelineSettings:
@@ -74,6 +82,9 @@ class ContourNode(Node):
         self.pipeline = ContourPipeline(pipeline_settings(self.params))
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
+        self.lost = LostFrameCounter()
+        self._saved_background = None
+        self._load_background()
         # sensor-data profile (best effort) for live cameras, reliable for bag replay
         image_qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_images'] else ReliabilityPolicy.BEST_EFFORT,
@@ -81,7 +92,7 @@ class ContourNode(Node):
         self.create_subscription(Image, 'image_raw', self._on_image, image_qos)
         info_qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_camera_info'] else ReliabilityPolicy.BEST_EFFORT,
-            history=HistoryPolicy.KEEP_LAST, depth=10)
+            history=HistoryPolicy.KEEP_LAST, depth=INFO_QUEUE_DEPTH)
         self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, info_qos)
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
@@ -90,12 +101,49 @@ class ContourNode(Node):
 
     def _on_parameters_set(self) -> None:
         self.pipeline = ContourPipeline(pipeline_settings(self.params))
+        self._saved_background = None
+        self._load_background()
         self.health.note('reconfigured', 'parameters changed: pipeline rebuilt')
 
+    # ------------------------------------------------------------ learnt background on disk
+    def _load_background(self) -> None:
+        """Start from the saved background when there is one (the node was restarted mid-session)."""
+        path = self.params['background_file']
+        if not path or not Path(path).is_file() or self.params['segmenter'] != 'background':
+            return
+        background = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+        if background is None:
+            self.health.note('background_unreadable', f'background_file {path} is not a readable image: learning')
+            return
+        self.pipeline.set_background(background)
+        self._saved_background = self.pipeline.background
+        self.get_logger().info(f'background loaded from {path} ({background.shape[1]}x{background.shape[0]})')
+
+    def _save_background(self) -> None:
+        """Write the freshly learnt background (atomically) so a restart can load it."""
+        path, background = self.params['background_file'], self.pipeline.background
+        self._saved_background = background
+        if not path or background is None:
+            return
+        tmp = f'{path}.tmp.png'
+        try:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            if not cv2.imwrite(tmp, background):
+                raise OSError('cv2.imwrite failed')
+            os.replace(tmp, path)
+        except OSError as exc:
+            self.health.note('background_not_saved', f'could not save the background to {path}: {exc}')
+            return
+        self.get_logger().info(f'background learnt and saved to {path}')
+
+    # ------------------------------------------------------------ inputs
     def _on_camera_info(self, msg: CameraInfo) -> None:
         if self.camera_info is None:
             self.get_logger().info(f'camera_info received: {msg.width}x{msg.height}, {msg.distortion_model}')
         self.camera_info = msg
+        for _ in self.lost.announced(stamp_to_ns(msg.header.stamp)):
+            self.health.drop('image_lost', 'camera_info came but its image did not (lost in transport or '
+                                           'overwritten in a full queue)')
 
     def _on_image(self, msg: Image) -> None:
         self.health.count('frames_in')
@@ -105,10 +153,16 @@ class ContourNode(Node):
             self.health.note('no_camera_info', 'image before any camera_info: processed without the size check')
         if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
             self.pipeline.reset()
+            self.lost.reset()
+            self._saved_background = None
+            self._load_background()
             self.health.note('time_jump_resets', 'timestamps went backwards (bag loop?): frame history reset')
         elif self.last_stamp_ns is not None and stamp == self.last_stamp_ns:
             self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
             return
+        for _ in self.lost.received(stamp):
+            self.health.drop('image_lost', 'camera_info came but its image did not (lost in transport or '
+                                           'overwritten in a full queue)')
         try:
             grey = image_message_to_grey(msg)
         except ImageFormatError as exc:
@@ -121,6 +175,8 @@ class ContourNode(Node):
             return
         self.last_stamp_ns = stamp
         result = self.pipeline.process(grey)
+        if self.pipeline.background is not None and self.pipeline.background is not self._saved_background:
+            self._save_background()
         self._publish(msg, result)
         self.health.count('processed')
         if result.warming_up:

@@ -1,0 +1,34 @@
+"""LostFrameCounter: images that never arrived are found from their camera_info, each exactly once."""
+from memo_ros.ros.lost_frames import LostFrameCounter
+
+
+def test_announced_frames_without_an_image_are_lost_once_a_newer_image_arrives():
+    c = LostFrameCounter()
+    assert c.announced(1) == [] and c.received(1) == []
+    assert c.announced(2) == [] and c.announced(3) == []
+    assert c.received(3) == [2]                 # 2 never came, and images arrive in order
+    assert c.announced(4) == [] and c.announced(5) == []
+    assert c.received(5) == [4]
+    assert c.received(6) == []                  # an image before its camera_info
+    assert c.announced(6) == []
+    assert c.announced(2) == []                 # a repeated announcement is not a second loss
+
+
+def test_an_announcement_older_than_the_newest_image_is_lost_at_once_and_unstamped_ones_name_no_frame():
+    c = LostFrameCounter()
+    c.received(10)
+    assert c.announced(9) == [9]
+    assert c.announced(10) == []
+    assert c.announced(0) == []
+    c.reset()
+    assert c.announced(9) == [] and c.received(9) == []
+
+
+def test_memory_stays_bounded_when_the_announcing_stream_is_not_per_frame():
+    c = LostFrameCounter(recent=16)
+    for stamp in range(1, 1000):
+        c.announced(stamp)
+    assert len(c._waiting) <= 16
+    for stamp in range(2000, 3000):
+        c.received(stamp)
+    assert len(c._settled) <= 16 and len(c._settled_set) <= 16
