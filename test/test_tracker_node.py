@@ -7,6 +7,7 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from memo_ros.core.body import load_default_body
@@ -14,7 +15,7 @@ from memo_ros.core.scenarios import make_scenario
 from memo_ros.core.selection import Assignment
 from memo_ros.core.studio import Studio
 from memo_ros.ros.assignment_messages import assignment_to_message
-from memo_ros.ros.body_messages import stamp_from_ns
+from memo_ros.ros.body_messages import PROCESSED_TOPIC, stamp_from_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
@@ -47,6 +48,8 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
         assign_pub = node.create_publisher(DiagnosticArray, '/memo/camera_assignment', 10)
         joints, values = [], {}
         node.create_subscription(JointState, '/memo/joint_states', joints.append, 100)
+        processed = []
+        node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
 
         def on_diagnostics(msg: DiagnosticArray) -> None:
             for status in msg.status:
@@ -96,13 +99,17 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
         # an assignment naming a camera the studio lacks
         assign_pub.publish(assignment_to_message(Assignment.all_cameras(cams + ['cam_ghost']), T0 + 8 * DT))
         send(8, T0 + 8 * DT)
-        # a message of a frame already processed
+        # a message of a frame already processed is counted; a frame first heard of after newer ones were
+        # processed is dropped as late and still reported on /memo/processed
         pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT))
+        pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT + DT // 2))
         spin(0.3)
+        assert any(p.frame_id == 'late' and p.stamp.sec * 10 ** 9 + p.stamp.nanosec == T0 + 2 * DT + DT // 2
+                   for p in processed)
         # the bag loops: stamps jump back 10 s
         send(0, T0 - 10 * 10 ** 9)
         spin_until(lambda: {'nan_contour_points', 'dropped.bad_contours', 'dropped.assignment_unknown_camera',
-                            'dropped.late_message', 'time_jump_resets'} <= set(values))
+                            'late_messages', 'dropped.late_frame', 'time_jump_resets'} <= set(values))
         assert reset.wait_for_service(timeout_sec=10)
         future = reset.call_async(Trigger.Request())
         spin_until(future.done)

@@ -11,12 +11,14 @@ Services like robot_localization's: ``~/reset`` (std_srvs/Trigger) and the
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
@@ -70,7 +72,11 @@ PARAMS: tuple[Param, ...] = (
     Param('use_initial_pose', True, "start from the studio's initial_pose when it has one (else from the "
           'silhouettes)'),
     Param('wait_for_assignment', True, "wait (up to join_timeout) for the selector's assignment of each frame"),
+    Param('skip_when_behind', True, 'when a newer frame is complete, drop the older pending ones (counted as '
+          'skipped_behind) so latency stays bounded when the update is slower than the cameras; false tracks '
+          'every frame in order'),
 )
+LATE_STAMPS_KEPT = 512      # stamps of late frames remembered, so each is counted once
 
 
 @dataclass
@@ -95,7 +101,13 @@ def tracker_settings(p: dict) -> TrackerSettings:
 
 
 class TrackerNode(Node):
-    """Joins contours and assignments per frame and runs the articulated EKF."""
+    """Joins contours and assignments per frame and runs the articulated EKF.
+
+    Messages are taken on their own thread (the intake callback group) while a frame is being tracked, so
+    the join always sees what has arrived and, when the update is slower than the cameras, can skip to the
+    newest complete frame instead of letting the DDS queues overflow."""
+
+    executor_threads = 2
 
     def __init__(self, **kwargs) -> None:
         super().__init__('tracker_node', **kwargs)
@@ -109,16 +121,26 @@ class TrackerNode(Node):
                                              list(self.studio.initial_pose.values()))
         self.tracker = ArticulatedTracker(self.body, self.studio.cameras, tracker_settings(self.params), initial)
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
+        # join state, shared by the intake thread and the tracking thread (under self.lock)
+        self.lock = threading.Lock()
         self.pending: dict[int, PendingFrame] = {}
         self.last_processed_ns: int | None = None
         self.first_stamp_ns: int | None = None
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
+        self.late_stamps: dict[int, None] = {}      # insertion-ordered sets of recent stamps
+        self.done_stamps: dict[int, None] = {}
+        self.generation = 0                         # bumped by a time jump: frames in flight no longer count
+        self.reset_tracker = False
         # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten
         reliable = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100)
+        intake = MutuallyExclusiveCallbackGroup()
         for cam in self.camera_names:
-            self.create_subscription(PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable)
-        self.create_subscription(DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable)
+            self.create_subscription(PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable,
+                                     callback_group=intake)
+        self.create_subscription(DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable,
+                                 callback_group=intake)
+        # the tracker itself is touched only from the default group: set_pose, reset, parameters, the tick
         self.create_subscription(JointState, '~/set_pose', self._on_set_pose, reliable)
         self.pub_joints = self.create_publisher(JointState, '/memo/joint_states', 10)
         self.pub_poses = self.create_publisher(PoseArray, '/memo/body_poses', 10)
@@ -126,7 +148,7 @@ class TrackerNode(Node):
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, 100)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.create_timer(0.005, self._flush_expired)
+        self.create_timer(0.005, self._tick)
         self.health.set('tracking_state', self.tracker.status)
         self.get_logger().info(f'tracking with cameras {", ".join(self.camera_names)}; '
                                f'initial pose: {"studio" if initial is not None else "from the silhouettes"}')
@@ -138,7 +160,8 @@ class TrackerNode(Node):
 
     def _on_reset(self, request, response):
         self.tracker.reset()
-        self.pending.clear()
+        with self.lock:
+            self.pending.clear()
         self.health.note('resets', 'reset requested: re-initialising on the next frame')
         response.success = True
         response.message = 'tracker reset; it re-initialises on the next frame with contours'
@@ -154,25 +177,29 @@ class TrackerNode(Node):
             return
         self.health.note('set_pose', 'pose set: the next frame starts from it')
 
-    # ------------------------------------------------------------ inputs
+    # ------------------------------------------------------------ inputs (intake thread)
     def _contour_callback(self, cam: str):
         def on_contours(msg: PointCloud2) -> None:
             self._on_contours(cam, msg)
         return on_contours
 
     def _frame_for(self, stamp: int, what: str) -> PendingFrame | None:
-        """The pending frame of ``stamp``; None (counted) when it is late, resets on a jump back in time."""
+        """The pending frame of ``stamp`` (call under the lock); None (counted) when it is late; a jump back
+        in time resets the filter."""
         last = self.last_processed_ns
         if last is not None and stamp <= last:
             if last - stamp > self.params['time_jump'] * 1e9:
-                self.tracker.reset()
                 self.pending.clear()
                 self.last_processed_ns = None
                 self.first_stamp_ns = stamp
                 self.newest_contours_ns.clear()
+                self.done_stamps.clear()
+                self.late_stamps.clear()
+                self.generation += 1
+                self.reset_tracker = True
                 self.health.note('time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset')
             else:
-                self.health.drop('late_message', f'{what} of an already processed frame arrived late')
+                self._late(stamp, what)
                 return None
         if self.first_stamp_ns is None:
             self.first_stamp_ns = stamp
@@ -180,6 +207,18 @@ class TrackerNode(Node):
         if frame is None:
             frame = self.pending[stamp] = PendingFrame(time.monotonic())
         return frame
+
+    def _late(self, stamp: int, what: str) -> None:
+        """A message of a frame already processed or passed over: counted; a frame first heard of now is
+        accounted for once, on /memo/processed as 'late'."""
+        if stamp in self.late_stamps or stamp in self.done_stamps:
+            self.health.count('late_messages')
+            return
+        self.late_stamps[stamp] = None
+        if len(self.late_stamps) > LATE_STAMPS_KEPT:
+            del self.late_stamps[next(iter(self.late_stamps))]
+        self.health.drop('late_frame', f'{what} of a frame older than the last processed one arrived late')
+        self.pub_processed.publish(processed_message(stamp, 'late'))
 
     def _on_contours(self, cam: str, msg: PointCloud2) -> None:
         self.health.count(f'contours_in.{cam}')
@@ -197,12 +236,12 @@ class TrackerNode(Node):
             self.health.count('nan_contour_points', int((~finite).sum()))
             self.health.drop('nan_contour_points', f'{cam}: {int((~finite).sum())} contour points with NaN ignored')
             table = table[finite]
-        frame = self._frame_for(stamp, f'{cam} contours')
-        if frame is None:
-            return
-        frame.contours[cam] = table
-        self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
-        self._process_ready()
+        with self.lock:
+            frame = self._frame_for(stamp, f'{cam} contours')
+            if frame is None:
+                return
+            frame.contours[cam] = table
+            self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
 
     def _on_assignment(self, msg: DiagnosticArray) -> None:
         self.health.count('assignments_in')
@@ -216,13 +255,12 @@ class TrackerNode(Node):
         if unknown:
             self.health.drop('assignment_unknown_camera',
                              f'assignment names camera(s) not in the studio: {", ".join(unknown)} (ignored)')
-        frame = self._frame_for(stamp, 'assignment')
-        if frame is None:
-            return
-        frame.assignment = assignment
-        self._process_ready()
+        with self.lock:
+            frame = self._frame_for(stamp, 'assignment')
+            if frame is not None:
+                frame.assignment = assignment
 
-    # ------------------------------------------------------------ joining
+    # ------------------------------------------------------------ joining (under the lock)
     def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
         """Cameras worth waiting for: alive in the assignment, or with recent contours."""
         if frame.assignment is not None:
@@ -238,49 +276,78 @@ class TrackerNode(Node):
             return False
         return all(c in frame.contours for c in self._expected_cameras(stamp, frame))
 
-    def _process_ready(self) -> None:
-        """Process complete frames in stamp order (older incomplete ones first, as they are)."""
-        for stamp in sorted(self.pending):
-            if self._complete(stamp, self.pending[stamp]):
-                for older in [s for s in sorted(self.pending) if s <= stamp]:
-                    self._process(older, self.pending.pop(older))
+    def _next_frame(self) -> tuple[int, PendingFrame, list[str]] | None:
+        """The frame to track now, with the expected cameras it lacks: the oldest complete one (older
+        incomplete ones first, as they are), or with skip_when_behind the newest complete one, the older
+        ones skipped; else one whose wait exceeded join_timeout, going through with what arrived.  Only
+        time spent idle counts for the timeout: after a long update the queued messages get their turn."""
+        skip = self.params['skip_when_behind']
+        complete = [s for s in sorted(self.pending) if self._complete(s, self.pending[s])]
+        if complete:
+            stamp = complete[-1] if skip else complete[0]
+        else:
+            now = time.monotonic()
+            if now - self.idle_since < self.params['join_timeout']:
+                return None
+            expired = sorted(s for s, f in self.pending.items() if now - f.first_wall > self.params['join_timeout'])
+            if not expired:
+                return None
+            stamp = expired[-1] if skip else expired[0]
+        older = [s for s in sorted(self.pending) if s < stamp]
+        if skip:
+            for s in older:
+                del self.pending[s]
+                self._skip(s)
+        elif older:
+            stamp = older[0]                 # in stamp order: the older, incomplete frame goes first
+        frame = self.pending.pop(stamp)
+        return stamp, frame, [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
+
+    def _skip(self, stamp: int) -> None:
+        """A frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""
+        self.health.drop('skipped_behind', 'the tracker is behind: an older frame was skipped for a newer one')
+        self._done(stamp)
+        self.pub_processed.publish(processed_message(stamp, 'skipped'))
+
+    def _done(self, stamp: int) -> None:
+        self.last_processed_ns = stamp if self.last_processed_ns is None else max(stamp, self.last_processed_ns)
+        self.done_stamps[stamp] = None
+        if len(self.done_stamps) > LATE_STAMPS_KEPT:
+            del self.done_stamps[next(iter(self.done_stamps))]
+
+    # ------------------------------------------------------------ tracking (default group)
+    def _tick(self) -> None:
+        """Track every frame that is ready, one after the other."""
+        while True:
+            with self.lock:
+                if self.reset_tracker:
+                    self.tracker.reset()
+                    self.reset_tracker = False
+                job = self._next_frame()
+                generation = self.generation
+            if job is None:
                 return
+            stamp, frame, missing = job
+            outcome = self._track(stamp, frame, missing)
+            with self.lock:
+                if generation == self.generation:
+                    self._done(stamp)
+            self.pub_processed.publish(processed_message(stamp, outcome))
 
-    def _flush_expired(self) -> None:
-        """Frames whose wait exceeded join_timeout go through with what arrived.
-
-        Only time the node spent idle counts: after a long update the queued messages get their turn first."""
-        now = time.monotonic()
-        if now - self.idle_since < self.params['join_timeout']:
-            return
-        expired = [s for s, f in self.pending.items() if now - f.first_wall > self.params['join_timeout']]
-        for stamp in sorted(expired):
-            for older in [s for s in sorted(self.pending) if s <= stamp]:
-                self._process(older, self.pending.pop(older))
-
-    # ------------------------------------------------------------ tracking
-    def _process(self, stamp: int, frame: PendingFrame) -> None:
-        """Track one joined frame, then say it is done (whatever came of it)."""
-        outcome = self._track(stamp, frame)
-        self.pub_processed.publish(processed_message(stamp, outcome))
-
-    def _track(self, stamp: int, frame: PendingFrame) -> str:
+    def _track(self, stamp: int, frame: PendingFrame, missing: list[str]) -> str:
         self.health.count('frames')
-        missing = [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
         if missing:
             self.health.count('cameras_missing_in_frame', len(missing))
         if frame.assignment is None:
             self.health.count('frames_without_assignment')
         if not frame.contours:
             self.health.drop('no_contours', 'a frame had an assignment but no camera contours within join_timeout')
-            self.last_processed_ns = stamp
             return 'no_contours'
         selected = None
         if frame.assignment is not None:
             selected = {c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names}
         result = self.tracker.step(stamp, frame.contours, selected)
         self.idle_since = time.monotonic()
-        self.last_processed_ns = stamp
         self.health.set('tracking_state', result.status)
         self.health.set('cameras_in_frame', ','.join(sorted(frame.contours)))
         self.health.set('contour_samples', result.samples)

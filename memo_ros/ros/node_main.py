@@ -6,12 +6,15 @@ from typing import Callable
 
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
-    """Spin the node ``make_node`` builds until Ctrl-C or shutdown; exit 2 with one line if it refuses to start."""
+    """Spin the node ``make_node`` builds until Ctrl-C or shutdown; exit 2 with one line if it refuses to start.
+
+    A node class with ``executor_threads`` > 1 spins on a multi-threaded executor (its callback groups say
+    what may run in parallel)."""
     rclpy.init(args=args if args is not None else sys.argv)
     try:
         node = make_node()
@@ -19,8 +22,10 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
         print(f'{name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    threads = getattr(node, 'executor_threads', 1)
+    executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
     try:
-        rclpy.spin(node)
+        rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
