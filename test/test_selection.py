@@ -115,12 +115,17 @@ def test_camera_timeout_drops_the_camera_and_restores_it_when_it_comes_back():
     ns = 1_000_000_000
     live = CameraLiveness(NAMES, timeout_s=0.3)
     assert all(live.alive(0).values())                   # never heard of yet: counted from the first frame
+
+    def seen(name: str, stamp: int, sources=CameraLiveness.SOURCES) -> None:
+        for source in sources:
+            live.seen(name, stamp, source)
+
     for t in (0.0, 0.1):
         for name in NAMES:
-            live.seen(name, int(t * ns))
+            seen(name, int(t * ns))
     for t in (0.2, 0.3, 0.4, 0.5):                        # cam_top falls silent after 0.1 s
         for name in NAMES[:2]:
-            live.seen(name, int(t * ns))
+            seen(name, int(t * ns))
     assert live.alive(int(0.4 * ns))['cam_top']           # 0.3 s silent: still within the timeout
     alive = live.alive(int(0.5 * ns))
     assert not alive['cam_top'] and alive['cam_front'] and alive['cam_side']
@@ -129,15 +134,23 @@ def test_camera_timeout_drops_the_camera_and_restores_it_when_it_comes_back():
     dropped = selector.assign(q, q, alive)
     top = cam('cam_top')
     assert not dropped.alive[top] and not dropped.selected[:, top].any() and np.isnan(dropped.vi[:, top]).all()
-    live.seen('cam_top', int(0.6 * ns))                   # its contours arrive again
+    seen('cam_top', int(0.6 * ns))                        # its camera_info and contours arrive again
     alive = live.alive(int(0.6 * ns))
     assert all(alive.values())
     restored = selector.assign(q, q, alive)
     assert restored.alive.all() and restored.selected[:, top].any()
+    # the camera still sends camera_info but its contour_node is gone: not alive either
+    for t in (0.7, 0.8, 0.9, 1.0):
+        for name in NAMES:
+            seen(name, int(t * ns), ('camera_info',) if name == 'cam_side' else CameraLiveness.SOURCES)
+    assert live.alive(int(0.8 * ns))['cam_side'] and not live.alive(int(0.9 * ns))['cam_side']   # contours last 0.5 s
+    live.require_contours = False                         # a selector without contour nodes: camera_info suffices
+    assert live.alive(int(1.0 * ns))['cam_side']
     # without any camera_info at all, a camera drops out once the timeout has passed since the first frame
     fresh = CameraLiveness(NAMES, timeout_s=0.3)
     fresh.alive(0)
-    fresh.seen('cam_front', int(0.5 * ns))
+    fresh.seen('cam_front', int(0.5 * ns), 'camera_info')
+    fresh.seen('cam_front', int(0.5 * ns), 'contours')
     assert fresh.alive(int(0.5 * ns)) == {'cam_front': True, 'cam_side': False, 'cam_top': False}
 
 

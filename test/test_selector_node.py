@@ -147,7 +147,8 @@ class Feeder:
 
 
 def test_camera_timeout_drops_a_silent_camera_and_restores_it_when_its_contours_come_back(ros_env):
-    node_process = _start_node(ros_env, STUDIO, '-p', 'camera_timeout:=0.3')
+    # the selector alone, without contour nodes: camera_info keeps a camera alive (require_contours off)
+    node_process = _start_node(ros_env, STUDIO, '-p', 'camera_timeout:=0.3', '-p', 'require_contours:=false')
     cameras = Studio.load(STUDIO).cameras
     with ros_session('selector_feeder', ros_env.domain_id) as (node, executor):
         feed = Feeder(node, executor, cameras)
@@ -237,7 +238,9 @@ def test_studio_arm_bag_the_occluded_arm_is_not_selected_from_the_camera_it_is_h
     frames = 45
     sim = simulate('studio-arm', tmp_path / 'arm', frames=frames, width=320, height=240, empty_frames=0)
     # 320x240 images: a label scale of 0.5 gives the 160x120 label images the default 0.25 gives at 640x480
-    node_process = _start_node(ros_env, sim.studio, '-p', 'render_scale:=0.5', '--log-level', 'selector_node:=debug')
+    # the selector alone on the bag's camera_info, without contour nodes (require_contours off)
+    node_process = _start_node(ros_env, sim.studio, '-p', 'render_scale:=0.5', '-p', 'require_contours:=false',
+                               '--log-level', 'selector_node:=debug')
     out = tmp_path / 'assignments'
     recorder = ros_env.start('bag', 'record', '-o', out, '/memo/camera_assignment', '--max-messages', frames,
                              '--idle-timeout', 3, '--duration', 60)

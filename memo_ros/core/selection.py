@@ -282,29 +282,39 @@ class CameraSelector:
 
 @dataclass
 class CameraLiveness:
-    """Which cameras are alive at a frame stamp: newest camera_info/contours stamp within the timeout.
+    """Which cameras are alive at a frame stamp: newest camera_info AND contours stamps within the timeout.
 
-    Stamp-based (header stamps, not arrival times), so a bag replayed at any rate
-    behaves alike.  The clock starts at the first frame: a camera never heard of
-    counts as seen then, and drops out once the timeout has passed without it.
+    Both streams count: without camera_info the camera (or its driver) is gone, without contours its
+    contour_node is (``require_contours`` False: either stream keeps it alive, for a selector run
+    without contour nodes).  Stamp-based (header stamps, not arrival times), so a bag replayed at any rate
+    behaves alike.  The clock starts at the first frame: a stream never heard of counts as seen then,
+    and drops out once the timeout has passed without it.
     """
 
     cameras: list[str]
     timeout_s: float
-    newest_ns: dict[str, int] = field(default_factory=dict)
+    require_contours: bool = True
+    newest_ns: dict[tuple[str, str], int] = field(default_factory=dict)
     first_frame_ns: int | None = None
 
-    def seen(self, camera: str, stamp_ns: int) -> None:
-        """A camera_info or contours message of ``camera`` with this header stamp arrived."""
+    SOURCES = ('camera_info', 'contours')
+
+    def seen(self, camera: str, stamp_ns: int, source: str) -> None:
+        """A message of ``camera`` from ``source`` (camera_info or contours) with this header stamp arrived."""
+        if source not in self.SOURCES:
+            raise ValueError(f'unknown liveness source {source!r}; one of {", ".join(self.SOURCES)}')
         if camera in self.cameras:
-            self.newest_ns[camera] = max(self.newest_ns.get(camera, stamp_ns), stamp_ns)
+            key = (camera, source)
+            self.newest_ns[key] = max(self.newest_ns.get(key, stamp_ns), stamp_ns)
 
     def alive(self, frame_ns: int) -> dict[str, bool]:
-        """Camera -> alive at frame ``frame_ns`` (newest stamp not older than the timeout)."""
+        """Camera -> alive at frame ``frame_ns`` (the newest stamp of each source not older than the timeout)."""
         if self.first_frame_ns is None:
             self.first_frame_ns = frame_ns
         limit = int(round(self.timeout_s * 1e9))
-        return {c: frame_ns - self.newest_ns.get(c, self.first_frame_ns) <= limit for c in self.cameras}
+        combine = all if self.require_contours else any
+        return {c: combine(frame_ns - self.newest_ns.get((c, src), self.first_frame_ns) <= limit
+                           for src in self.SOURCES) for c in self.cameras}
 
     def reset(self) -> None:
         """Forget every stamp (time jumped backwards)."""

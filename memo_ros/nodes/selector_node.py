@@ -7,8 +7,8 @@ than t is predicted to t with the tracker's motion model; the core's
 visibility index and the observability and publishes the
 :class:`Assignment` on ``/memo/camera_assignment`` stamped t.  Without a
 recent posterior every live camera is assigned to every part (mode
-``all_cameras``).  A camera whose newest camera_info or contours stamp is older
-than t by more than ``camera_timeout`` is excluded until it comes back
+``all_cameras``).  A camera whose newest camera_info or newest contours stamp is
+older than t by more than ``camera_timeout`` is excluded until it comes back
 (stamps, not arrival times, so a bag replays alike at any rate).
 """
 from __future__ import annotations
@@ -49,8 +49,10 @@ PARAMS = (
     Param('observability_norm', 'norm_of_sum', "how a part's predicted contour-node image motion is combined: "
           "the paper's norm of the sum, or the sum of the norms (does not cancel for a part spinning about its "
           'own axis)', choices=NORMS),
-    Param('camera_timeout', 0.5, 'a camera whose newest camera_info or contours stamp is older than the frame by '
-          'more than this many seconds is excluded until it comes back', 0.01, 3600.0),
+    Param('camera_timeout', 0.5, 'a camera whose newest camera_info or newest contours stamp (its contour_node) is older than '
+          'the frame by more than this many seconds is excluded until it comes back', 0.01, 3600.0),
+    Param('require_contours', True, 'a camera counts alive only while its contour_node publishes too; false: its '
+          'camera_info alone keeps it alive (the selector run without contour nodes)'),
     Param('max_posterior_age', 0.5, 'a /memo/joint_states posterior older than the frame by more than this many '
           'seconds is not predicted from: every live camera is assigned to every part instead', 0.0, 3600.0),
     Param('summary_every', 30, 'log a one-line summary at info level every this many frames (each frame\'s '
@@ -94,7 +96,8 @@ class SelectorNode(Node):
         self.selector = CameraSelector(self.body, self.studio.cameras, self.settings)
         self.motion = ConstantVelocity(self.body)
         self.coordinate_index = {n: i for i, n in enumerate(self.body.coordinate_names)}
-        self.liveness = CameraLiveness(list(self.names), self.settings.camera_timeout_s)
+        self.liveness = CameraLiveness(list(self.names), self.settings.camera_timeout_s,
+                                       self.params['require_contours'])
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='selector')
         self.posteriors: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=POSTERIOR_HISTORY)
         self.info_stamp: dict[str, int] = {}
@@ -119,6 +122,7 @@ class SelectorNode(Node):
         self.settings = selection_settings(self.params)
         self.selector = CameraSelector(self.body, self.studio.cameras, self.settings)
         self.liveness.timeout_s = self.settings.camera_timeout_s
+        self.liveness.require_contours = self.params['require_contours']
         self.health.note('reconfigured', 'parameters changed: selector rebuilt')
 
     # ---------------------------------------------------------------- inputs
@@ -127,7 +131,7 @@ class SelectorNode(Node):
         if stamp is None:
             self.health.drop('bad_contours', f'{cam}/contours: message too short for a header')
             return
-        self.liveness.seen(cam, stamp)
+        self.liveness.seen(cam, stamp, 'contours')
 
     def _on_joint_states(self, msg: JointState) -> None:
         self.health.count('joint_states_in')
@@ -192,7 +196,7 @@ class SelectorNode(Node):
         if previous is not None and stamp < previous:
             self._reset(f'{cam}/camera_info stamps went backwards (bag loop?): liveness and posteriors reset')
         self.info_stamp[cam] = stamp
-        self.liveness.seen(cam, stamp)
+        self.liveness.seen(cam, stamp, 'camera_info')
         if self.last_frame_ns is not None and stamp <= self.last_frame_ns:
             if stamp < self.last_frame_ns:
                 self.health.drop('stamp_not_newer', f'{cam}/camera_info for a frame older than the current one')
