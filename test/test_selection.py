@@ -113,45 +113,57 @@ def test_spin_about_the_parts_own_axis_cancels_in_the_papers_norm_of_the_sum_not
 
 def test_camera_timeout_drops_the_camera_and_restores_it_when_it_comes_back():
     ns = 1_000_000_000
-    live = CameraLiveness(NAMES, timeout_s=0.3)
-    assert all(live.alive(0).values())                   # never heard of yet: counted from the first frame
+    live = CameraLiveness(NAMES, timeout_s=0.3, contours_timeout_s=0.3)
 
-    def seen(name: str, stamp: int, sources=CameraLiveness.SOURCES) -> None:
+    def alive(t: float) -> dict[str, bool]:          # judged at t, the cameras running in real time
+        return live.alive(int(t * ns), wall=t)
+
+    def seen(name: str, t: float, sources=CameraLiveness.SOURCES) -> None:
         for source in sources:
-            live.seen(name, stamp, source)
+            live.seen(name, int(t * ns), source, wall=t)
 
+    assert all(alive(0.0).values())                       # never heard of yet: counted from the first frame
     for t in (0.0, 0.1):
         for name in NAMES:
-            seen(name, int(t * ns))
+            seen(name, t)
     for t in (0.2, 0.3, 0.4, 0.5):                        # cam_top falls silent after 0.1 s
         for name in NAMES[:2]:
-            seen(name, int(t * ns))
-    assert live.alive(int(0.4 * ns))['cam_top']           # 0.3 s silent: still within the timeout
-    alive = live.alive(int(0.5 * ns))
-    assert not alive['cam_top'] and alive['cam_front'] and alive['cam_side']
+            seen(name, t)
+    assert alive(0.4)['cam_top']                          # 0.3 s silent: still within the timeout
+    now = alive(0.5)
+    assert not now['cam_top'] and now['cam_front'] and now['cam_side']
     selector = CameraSelector(BODY, CAMERAS)
     q = BODY.neutral()
-    dropped = selector.assign(q, q, alive)
+    dropped = selector.assign(q, q, now)
     top = cam('cam_top')
     assert not dropped.alive[top] and not dropped.selected[:, top].any() and np.isnan(dropped.vi[:, top]).all()
-    seen('cam_top', int(0.6 * ns))                        # its camera_info and contours arrive again
-    alive = live.alive(int(0.6 * ns))
-    assert all(alive.values())
-    restored = selector.assign(q, q, alive)
+    seen('cam_top', 0.6)                                  # its camera_info and contours arrive again
+    now = alive(0.6)
+    assert all(now.values())
+    restored = selector.assign(q, q, now)
     assert restored.alive.all() and restored.selected[:, top].any()
     # the camera still sends camera_info but its contour_node is gone: not alive either
     for t in (0.7, 0.8, 0.9, 1.0):
         for name in NAMES:
-            seen(name, int(t * ns), ('camera_info',) if name == 'cam_side' else CameraLiveness.SOURCES)
-    assert live.alive(int(0.8 * ns))['cam_side'] and not live.alive(int(0.9 * ns))['cam_side']   # contours last 0.5 s
+            seen(name, t, ('camera_info',) if name == 'cam_side' else CameraLiveness.SOURCES)
+    assert alive(0.8)['cam_side'] and not alive(0.9)['cam_side']           # its contours last came at 0.5 s
+    # a contour_node lagging 0.5 s behind its camera still delivers: alive
+    for t in (1.1, 1.2, 1.3):
+        seen('cam_side', t, ('camera_info',))
+        live.seen('cam_side', int((t - 0.5) * ns), 'contours', wall=t)
+    assert alive(1.3)['cam_side']
+    # a burst of camera_info ahead of the contours (fast replay) within the wall timeout: alive
+    for k in range(20):
+        live.seen('cam_side', int((1.4 + 0.05 * k) * ns), 'camera_info', wall=1.31)
+    assert live.alive(int(2.35 * ns), wall=1.32)['cam_side']
     live.require_contours = False                         # a selector without contour nodes: camera_info suffices
-    assert live.alive(int(1.0 * ns))['cam_side']
+    assert live.alive(int(2.35 * ns), wall=5.0)['cam_side']
     # without any camera_info at all, a camera drops out once the timeout has passed since the first frame
     fresh = CameraLiveness(NAMES, timeout_s=0.3)
-    fresh.alive(0)
-    fresh.seen('cam_front', int(0.5 * ns), 'camera_info')
-    fresh.seen('cam_front', int(0.5 * ns), 'contours')
-    assert fresh.alive(int(0.5 * ns)) == {'cam_front': True, 'cam_side': False, 'cam_top': False}
+    fresh.alive(0, wall=0.0)
+    fresh.seen('cam_front', int(0.5 * ns), 'camera_info', wall=0.5)
+    fresh.seen('cam_front', int(0.5 * ns), 'contours', wall=0.5)
+    assert fresh.alive(int(0.5 * ns), wall=0.5) == {'cam_front': True, 'cam_side': False, 'cam_top': False}
 
 
 def test_a_part_no_live_camera_sees_is_unobserved_and_every_part_keeps_at_most_max_cameras():

@@ -20,6 +20,7 @@ silhouette (one of the two faces meeting there is seen, the other not).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -282,41 +283,65 @@ class CameraSelector:
 
 @dataclass
 class CameraLiveness:
-    """Which cameras are alive at a frame stamp: newest camera_info AND contours stamps within the timeout.
+    """Which cameras are alive at a frame stamp: the camera is heard of and its contour_node delivers.
 
-    Both streams count: without camera_info the camera (or its driver) is gone, without contours its
-    contour_node is (``require_contours`` False: either stream keeps it alive, for a selector run
-    without contour nodes).  Stamp-based (header stamps, not arrival times), so a bag replayed at any rate
-    behaves alike.  The clock starts at the first frame: a stream never heard of counts as seen then,
-    and drops out once the timeout has passed without it.
+    - heard of: the newest camera_info or contours stamp is within the timeout of the frame (stamps, not
+      arrival times, so a bag replayed at any rate behaves alike; either stream, as one of them may lag
+      in a loaded process; the clock starts at the first frame, so a camera never heard of drops out
+      once the timeout has passed);
+    - contours (``require_contours``): the contour_node is gone once its contours stopped arriving both
+      for more than the timeout of camera_info stamps and for more than ``contours_timeout_s`` of wall
+      time.  A contour_node that lags behind the cameras, or is starved of CPU for a moment, still
+      delivers, so it is not taken for dead; without ``require_contours`` being heard of is enough (the
+      selector run without contour nodes).
     """
 
     cameras: list[str]
     timeout_s: float
     require_contours: bool = True
+    contours_timeout_s: float = 2.0
     newest_ns: dict[tuple[str, str], int] = field(default_factory=dict)
     first_frame_ns: int | None = None
+    first_wall: float | None = None
+    # camera -> (wall time of the last contours, newest camera_info stamp then)
+    contours_arrival: dict[str, tuple[float, int]] = field(default_factory=dict)
 
     SOURCES = ('camera_info', 'contours')
 
-    def seen(self, camera: str, stamp_ns: int, source: str) -> None:
-        """A message of ``camera`` from ``source`` (camera_info or contours) with this header stamp arrived."""
+    def seen(self, camera: str, stamp_ns: int, source: str, wall: float | None = None) -> None:
+        """A message of ``camera`` from ``source`` (camera_info or contours) with this header stamp arrived
+        (at monotonic ``wall`` time, now by default)."""
         if source not in self.SOURCES:
             raise ValueError(f'unknown liveness source {source!r}; one of {", ".join(self.SOURCES)}')
-        if camera in self.cameras:
-            key = (camera, source)
-            self.newest_ns[key] = max(self.newest_ns.get(key, stamp_ns), stamp_ns)
+        if camera not in self.cameras:
+            return
+        key = (camera, source)
+        self.newest_ns[key] = max(self.newest_ns.get(key, stamp_ns), stamp_ns)
+        if source == 'contours':
+            info = self.newest_ns.get((camera, 'camera_info'), stamp_ns)
+            self.contours_arrival[camera] = (time.monotonic() if wall is None else wall, max(info, stamp_ns))
 
-    def alive(self, frame_ns: int) -> dict[str, bool]:
-        """Camera -> alive at frame ``frame_ns`` (the newest stamp of each source not older than the timeout)."""
+    def alive(self, frame_ns: int, wall: float | None = None) -> dict[str, bool]:
+        """Camera -> alive at frame ``frame_ns`` (judged at monotonic ``wall`` time, now by default)."""
+        wall = time.monotonic() if wall is None else wall
         if self.first_frame_ns is None:
-            self.first_frame_ns = frame_ns
+            self.first_frame_ns, self.first_wall = frame_ns, wall
         limit = int(round(self.timeout_s * 1e9))
-        combine = all if self.require_contours else any
-        return {c: combine(frame_ns - self.newest_ns.get((c, src), self.first_frame_ns) <= limit
-                           for src in self.SOURCES) for c in self.cameras}
+
+        def recent(camera: str, source: str) -> bool:
+            return frame_ns - self.newest_ns.get((camera, source), self.first_frame_ns) <= limit
+
+        def delivering(camera: str) -> bool:
+            since_wall, since_ns = self.contours_arrival.get(camera, (self.first_wall, self.first_frame_ns))
+            return frame_ns - since_ns <= limit or wall - since_wall <= self.contours_timeout_s
+
+        heard = {c: recent(c, 'camera_info') or recent(c, 'contours') for c in self.cameras}
+        if not self.require_contours:
+            return heard
+        return {c: heard[c] and delivering(c) for c in self.cameras}
 
     def reset(self) -> None:
         """Forget every stamp (time jumped backwards)."""
         self.newest_ns.clear()
-        self.first_frame_ns = None
+        self.contours_arrival.clear()
+        self.first_frame_ns = self.first_wall = None

@@ -7,8 +7,9 @@ than t is predicted to t with the tracker's motion model; the core's
 visibility index and the observability and publishes the
 :class:`Assignment` on ``/memo/camera_assignment`` stamped t.  Without a
 recent posterior every live camera is assigned to every part (mode
-``all_cameras``).  A camera whose newest camera_info or newest contours stamp is
-older than t by more than ``camera_timeout`` is excluded until it comes back
+``all_cameras``).  A camera whose newest camera_info and contours stamps are
+older than t by more than ``camera_timeout``, or whose contour_node stopped
+delivering (``contours_timeout``), is excluded until it comes back
 (stamps, not arrival times, so a bag replays alike at any rate).
 """
 from __future__ import annotations
@@ -49,10 +50,12 @@ PARAMS = (
     Param('observability_norm', 'norm_of_sum', "how a part's predicted contour-node image motion is combined: "
           "the paper's norm of the sum, or the sum of the norms (does not cancel for a part spinning about its "
           'own axis)', choices=NORMS),
-    Param('camera_timeout', 0.5, 'a camera whose newest camera_info or newest contours stamp (its contour_node) is older than '
-          'the frame by more than this many seconds is excluded until it comes back', 0.01, 3600.0),
-    Param('require_contours', True, 'a camera counts alive only while its contour_node publishes too; false: its '
+    Param('camera_timeout', 0.5, 'a camera whose newest camera_info and contours stamps are older than the frame by '
+          'more than this many seconds is excluded until it comes back', 0.01, 3600.0),
+    Param('require_contours', True, 'a camera counts alive only while its contour_node delivers too; false: its '
           'camera_info alone keeps it alive (the selector run without contour nodes)'),
+    Param('contours_timeout', 2.0, "with require_contours: a camera whose contour_node delivered nothing for this "
+          'long (wall time) while its camera_info went on for camera_timeout is excluded, s', 0.05, 3600.0),
     Param('max_posterior_age', 0.5, 'a /memo/joint_states posterior older than the frame by more than this many '
           'seconds is not predicted from: every live camera is assigned to every part instead', 0.0, 3600.0),
     Param('summary_every', 30, 'log a one-line summary at info level every this many frames (each frame\'s '
@@ -97,7 +100,7 @@ class SelectorNode(Node):
         self.motion = ConstantVelocity(self.body)
         self.coordinate_index = {n: i for i, n in enumerate(self.body.coordinate_names)}
         self.liveness = CameraLiveness(list(self.names), self.settings.camera_timeout_s,
-                                       self.params['require_contours'])
+                                       self.params['require_contours'], self.params['contours_timeout'])
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='selector')
         self.posteriors: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=POSTERIOR_HISTORY)
         self.info_stamp: dict[str, int] = {}
@@ -123,6 +126,7 @@ class SelectorNode(Node):
         self.selector = CameraSelector(self.body, self.studio.cameras, self.settings)
         self.liveness.timeout_s = self.settings.camera_timeout_s
         self.liveness.require_contours = self.params['require_contours']
+        self.liveness.contours_timeout_s = self.params['contours_timeout']
         self.health.note('reconfigured', 'parameters changed: selector rebuilt')
 
     # ---------------------------------------------------------------- inputs

@@ -72,9 +72,9 @@ PARAMS: tuple[Param, ...] = (
     Param('use_initial_pose', True, "start from the studio's initial_pose when it has one (else from the "
           'silhouettes)'),
     Param('wait_for_assignment', True, "wait (up to join_timeout) for the selector's assignment of each frame"),
-    Param('skip_when_behind', True, 'when a newer frame is complete, drop the older pending ones (counted as '
-          'skipped_behind) so latency stays bounded when the update is slower than the cameras; false tracks '
-          'every frame in order'),
+    Param('max_lag', 1.0, 'frames are tracked in order, but one older than the newest complete frame by more than '
+          'this (stamp time) is skipped (counted skipped_behind): the latency bound when the update is slower than '
+          'the cameras; 0 tracks only the newest, a large value every frame', 0.0, 3600.0),
 )
 LATE_STAMPS_KEPT = 512      # stamps of late frames remembered, so each is counted once
 
@@ -104,8 +104,8 @@ class TrackerNode(Node):
     """Joins contours and assignments per frame and runs the articulated EKF.
 
     Messages are taken on their own thread (the intake callback group) while a frame is being tracked, so
-    the join always sees what has arrived and, when the update is slower than the cameras, can skip to the
-    newest complete frame instead of letting the DDS queues overflow."""
+    the join always sees what has arrived and, when the update falls behind the cameras by more than
+    max_lag, skips ahead instead of letting the DDS queues overflow."""
 
     executor_threads = 2
 
@@ -130,7 +130,6 @@ class TrackerNode(Node):
         self.newest_contours_ns: dict[str, int] = {}
         self.late_stamps: dict[int, None] = {}      # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
-        self.generation = 0                         # bumped by a time jump: frames in flight no longer count
         self.reset_tracker = False
         # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten
         reliable = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100)
@@ -195,7 +194,6 @@ class TrackerNode(Node):
                 self.newest_contours_ns.clear()
                 self.done_stamps.clear()
                 self.late_stamps.clear()
-                self.generation += 1
                 self.reset_tracker = True
                 self.health.note('time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset')
             else:
@@ -278,34 +276,30 @@ class TrackerNode(Node):
 
     def _next_frame(self) -> tuple[int, PendingFrame, list[str]] | None:
         """The frame to track now, with the expected cameras it lacks: the oldest complete one (older
-        incomplete ones first, as they are), or with skip_when_behind the newest complete one, the older
-        ones skipped; else one whose wait exceeded join_timeout, going through with what arrived.  Only
-        time spent idle counts for the timeout: after a long update the queued messages get their turn."""
-        skip = self.params['skip_when_behind']
-        complete = [s for s in sorted(self.pending) if self._complete(s, self.pending[s])]
-        if complete:
-            stamp = complete[-1] if skip else complete[0]
-        else:
+        incomplete ones first, as they are), else the oldest whose wait exceeded join_timeout, going through
+        with what arrived.  Only time spent idle counts for the timeout: after a long update the queued
+        messages get their turn.  Frames more than max_lag older than the newest ready one are skipped."""
+        ready = [s for s in sorted(self.pending) if self._complete(s, self.pending[s])]
+        if not ready:
             now = time.monotonic()
             if now - self.idle_since < self.params['join_timeout']:
                 return None
-            expired = sorted(s for s, f in self.pending.items() if now - f.first_wall > self.params['join_timeout'])
-            if not expired:
+            ready = sorted(s for s, f in self.pending.items() if now - f.first_wall > self.params['join_timeout'])
+            if not ready:
                 return None
-            stamp = expired[-1] if skip else expired[0]
-        older = [s for s in sorted(self.pending) if s < stamp]
-        if skip:
-            for s in older:
-                del self.pending[s]
-                self._skip(s)
-        elif older:
-            stamp = older[0]                 # in stamp order: the older, incomplete frame goes first
+        horizon = ready[-1] - int(self.params['max_lag'] * 1e9)
+        for old in [s for s in sorted(self.pending) if s < horizon]:
+            del self.pending[old]
+            self._skip(old)
+        stamp = min(self.pending)            # in stamp order: an older, incomplete frame goes first as it is
         frame = self.pending.pop(stamp)
+        self._done(stamp)                    # from now on a message of this frame is late, not a new frame
         return stamp, frame, [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
 
     def _skip(self, stamp: int) -> None:
         """A frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""
-        self.health.drop('skipped_behind', 'the tracker is behind: an older frame was skipped for a newer one')
+        self.health.drop('skipped_behind', f'the tracker is more than max_lag = {self.params["max_lag"]:g} s '
+                                           'behind: an older frame was skipped')
         self._done(stamp)
         self.pub_processed.publish(processed_message(stamp, 'skipped'))
 
@@ -324,14 +318,10 @@ class TrackerNode(Node):
                     self.tracker.reset()
                     self.reset_tracker = False
                 job = self._next_frame()
-                generation = self.generation
             if job is None:
                 return
             stamp, frame, missing = job
             outcome = self._track(stamp, frame, missing)
-            with self.lock:
-                if generation == self.generation:
-                    self._done(stamp)
             self.pub_processed.publish(processed_message(stamp, outcome))
 
     def _track(self, stamp: int, frame: PendingFrame, missing: list[str]) -> str:
