@@ -62,7 +62,8 @@ class RosEnv(dict):
         for process in self.processes:
             if process.poll() is None:
                 process.kill()
-            process.communicate()
+            if not (process.stdout and process.stdout.closed):       # not collected by the test already
+                process.communicate()
 
 
 @pytest.fixture

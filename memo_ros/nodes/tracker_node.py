@@ -77,6 +77,7 @@ PARAMS: tuple[Param, ...] = (
           'the cameras; 0 tracks only the newest, a large value every frame', 0.0, 3600.0),
 )
 LATE_STAMPS_KEPT = 512      # stamps of late frames remembered, so each is counted once
+MISSES_BEFORE_NOT_WAITING = 3   # a camera missing from this many joined frames in a row is not waited for
 
 
 @dataclass
@@ -128,6 +129,7 @@ class TrackerNode(Node):
         self.first_stamp_ns: int | None = None
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
+        self.missed: dict[str, int] = {c: 0 for c in self.camera_names}   # joined frames in a row without it
         self.late_stamps: dict[int, None] = {}      # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
         self.reset_tracker = False
@@ -240,6 +242,7 @@ class TrackerNode(Node):
                 return
             frame.contours[cam] = table
             self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
+            self.missed[cam] = 0
 
     def _on_assignment(self, msg: DiagnosticArray) -> None:
         self.health.count('assignments_in')
@@ -260,14 +263,17 @@ class TrackerNode(Node):
 
     # ------------------------------------------------------------ joining (under the lock)
     def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
-        """Cameras worth waiting for: alive in the assignment, or with recent contours."""
+        """Cameras worth waiting for: alive in the assignment, or with recent contours; not one that was
+        missing from the last few joined frames (its contour_node died, before the selector says so)."""
         if frame.assignment is not None:
             a = frame.assignment
-            return [c for c, alive in zip(a.cameras, a.alive) if alive and c in self.camera_names]
-        window = self.params['camera_timeout'] * 1e9
-        first = self.first_stamp_ns if self.first_stamp_ns is not None else stamp
-        # a camera not heard from yet is waited for during the first camera_timeout of the stream
-        return [c for c in self.camera_names if stamp - self.newest_contours_ns.get(c, first) <= window]
+            cams = [c for c, alive in zip(a.cameras, a.alive) if alive and c in self.camera_names]
+        else:
+            window = self.params['camera_timeout'] * 1e9
+            first = self.first_stamp_ns if self.first_stamp_ns is not None else stamp
+            # a camera not heard from yet is waited for during the first camera_timeout of the stream
+            cams = [c for c in self.camera_names if stamp - self.newest_contours_ns.get(c, first) <= window]
+        return [c for c in cams if self.missed[c] < MISSES_BEFORE_NOT_WAITING or c in frame.contours]
 
     def _complete(self, stamp: int, frame: PendingFrame) -> bool:
         if self.params['wait_for_assignment'] and frame.assignment is None:
@@ -294,7 +300,13 @@ class TrackerNode(Node):
         stamp = min(self.pending)            # in stamp order: an older, incomplete frame goes first as it is
         frame = self.pending.pop(stamp)
         self._done(stamp)                    # from now on a message of this frame is late, not a new frame
-        return stamp, frame, [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
+        missing = [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
+        for cam in missing:
+            self.missed[cam] += 1
+            if self.missed[cam] == MISSES_BEFORE_NOT_WAITING:
+                self.health.note('camera_not_waited_for', f'{cam}: no contours in {MISSES_BEFORE_NOT_WAITING} frames '
+                                                          'in a row: not waited for until they come again')
+        return stamp, frame, missing
 
     def _skip(self, stamp: int) -> None:
         """A frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""

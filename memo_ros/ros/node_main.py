@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 from typing import Callable
 
+import cv2
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
@@ -15,6 +16,7 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
 
     A node class with ``executor_threads`` > 1 spins on a multi-threaded executor (its callback groups say
     what may run in parallel)."""
+    cv2.setNumThreads(1)            # one process per camera and stage share the cores (see memo_ros.nodes)
     rclpy.init(args=args if args is not None else sys.argv)
     try:
         node = make_node()
