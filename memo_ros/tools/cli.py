@@ -20,6 +20,8 @@ COMMANDS = {
     'replay': ('memo_ros.tools.replay', 'run a bag through the live graph and record its outputs'),
     'evaluate': ('memo_ros.tools.evaluate', 'score estimated poses against ground truth'),
     'benchmark': ('memo_ros.tools.benchmark', 'measure speed of the core and tools'),
+    'import': ('memo_ros.tools.import_videos', 'import recorded videos and their calibration into a bag and studio'),
+    'export': ('memo_ros.tools.export_videos', "export a bag's images as videos plus a calibration for other tools"),
 }
 
 
