@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from memo_ros.tools.proc_stats import cpu_seconds, log_tail, peak_rss_mb, stop_process
+
 SCENARIO = 'studio-walk'
 CAMERA = 'cam_front'
 SIZE = (640, 480)
@@ -37,23 +39,6 @@ SETTLE = 0.5                       # s after matching, so both peers have matche
 IDLE_END = 1.5                     # s without a new contours message after playback: the node is done
 DRAIN_TIMEOUT = 30.0
 DIAGNOSTICS_PERIOD = 1.0           # the node's NodeHealth period
-CLOCK_TICKS = os.sysconf('SC_CLK_TCK')
-
-
-def _cpu_seconds(pid: int) -> float:
-    """utime + stime of process ``pid``, seconds."""
-    with open(f'/proc/{pid}/stat') as f:
-        fields = f.read().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS   # fields 14 and 15 of proc(5)
-
-
-def _peak_rss_mb(pid: int) -> float | None:
-    """VmHWM of process ``pid``, MB (None when unavailable)."""
-    with open(f'/proc/{pid}/status') as f:
-        for line in f:
-            if line.startswith('VmHWM:'):
-                return int(line.split()[1]) / 1024.0
-    return None
 
 
 def _start_node(env: dict, reliable: bool, log: Path) -> subprocess.Popen:
@@ -62,24 +47,6 @@ def _start_node(env: dict, reliable: bool, log: Path) -> subprocess.Popen:
             '-p', f'background_frames:={BACKGROUND_FRAMES}']
     with open(log, 'w') as out:
         return subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT)
-
-
-def _stop_node(process: subprocess.Popen) -> None:
-    """SIGINT (clean shutdown), then SIGKILL if it lingers."""
-    if process.poll() is None:
-        process.send_signal(2)
-        try:
-            process.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=5)
-
-
-def _log_tail(log: Path, lines: int = 10) -> str:
-    try:
-        return '\n'.join(log.read_text(errors='replace').splitlines()[-lines:])
-    except OSError:
-        return ''
 
 
 def run_case(bag: Path, reliability: str, rate: float, domain_id: int, env: dict, log: Path) -> dict:
@@ -103,7 +70,7 @@ def run_case(bag: Path, reliability: str, rate: float, domain_id: int, env: dict
 
             def on_contours(msg) -> None:
                 arrivals.append(time.monotonic())
-                cpu_at_arrival.append(_cpu_seconds(pid))
+                cpu_at_arrival.append(cpu_seconds(pid))
 
             def on_diagnostics(msg) -> None:
                 for status in msg.status:
@@ -130,7 +97,7 @@ def run_case(bag: Path, reliability: str, rate: float, domain_id: int, env: dict
                 while (unmatched := sorted(t for p in players for t in p.unmatched_topics())) \
                         or node.count_publishers(contour_topic) < 1:
                     if process.poll() is not None:
-                        raise RuntimeError(f'contour_node exited with {process.returncode}:\n{_log_tail(log)}')
+                        raise RuntimeError(f'contour_node exited with {process.returncode}:\n{log_tail(log)}')
                     if time.monotonic() > deadline:
                         raise RuntimeError(f'contour_node did not match within {MATCH_TIMEOUT:g} s: '
                                            f'{unmatched or [contour_topic]}')
@@ -140,7 +107,7 @@ def run_case(bag: Path, reliability: str, rate: float, domain_id: int, env: dict
                     executor.spin_once(timeout_sec=0.05)
 
                 stop = threading.Event()
-                cpu_start = _cpu_seconds(pid)
+                cpu_start = cpu_seconds(pid)
                 play_start = time.monotonic()
                 threads = [threading.Thread(target=p.play, args=(stop,), daemon=True) for p in players]
                 for thread in threads:
@@ -161,14 +128,14 @@ def run_case(bag: Path, reliability: str, rate: float, domain_id: int, env: dict
                     now = time.monotonic()
                     if now - last >= IDLE_END and diagnostics['time'] > last + IDLE_END - DIAGNOSTICS_PERIOD + 0.1:
                         break
-                peak_rss = _peak_rss_mb(pid)
+                peak_rss = peak_rss_mb(pid)
                 if process.poll() is not None:
-                    raise RuntimeError(f'contour_node exited with {process.returncode}:\n{_log_tail(log)}')
+                    raise RuntimeError(f'contour_node exited with {process.returncode}:\n{log_tail(log)}')
             finally:
                 for player in players:
                     player.close()
     finally:
-        _stop_node(process)
+        stop_process(process)
     return _figures(reliability, rate, published, arrivals, cpu_at_arrival, cpu_start, play_start, peak_rss,
                     diagnostics['values'])
 

@@ -19,7 +19,9 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker', 'walker')
+from memo_ros.tools import bench_graph
+
+SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker', 'walker', 'graph')
 SIM_SCENARIO = 'studio-arm'
 SIM_FRAMES = 30
 SIM_SIZE = (640, 480)
@@ -40,9 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
                         '5,000 contour points per camera (--repeat: passes over the sequence); walker = Rohr\'s walker per '
                         'frame on a street-walk, initialization and tracking, against the paper\'s exhaustive grid '
-                        '(--repeat: passes over the sequence)')
+                        '(--repeat: passes over the sequence); graph = the whole live graph (3 contour nodes, '
+                        'selector, tracker) fed a 3-camera 640x480 bag at 30 and 60 Hz: latency per stage and end '
+                        'to end, rates, drops, CPU and memory per process')
     parser.add_argument('--repeat', type=int, default=20, help='timed repetitions per renderer case (default 20)')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of the table')
+    bench_graph.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError('--repeat must be at least 1')
     measure, show = _suite(args.suite)
     report = {'command': command_line(args), 'machine': machine(), **measure(args)}
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=1) + '\n')
     if args.json:
         print(json.dumps(report))
     else:
@@ -72,6 +79,8 @@ def _suite(name: str):
     if name == 'walker':
         from memo_ros.tools.bench_walker import print_walker_benchmark, run_walker_benchmark
         return (lambda args: run_walker_benchmark(repeat=args.repeat)), _with_command(print_walker_benchmark)
+    if name == 'graph':
+        return bench_graph.measure, _with_command(bench_graph.print_graph_benchmark)
     if name == 'contour-node':
         from memo_ros.tools.bench_contour_node import print_node_benchmark, run_node_benchmark
         return (lambda args: run_node_benchmark()), _with_command(print_node_benchmark)
@@ -89,8 +98,11 @@ def _with_command(show):
 
 def command_line(args: argparse.Namespace) -> str:
     """The command line that reproduces this run."""
-    repeat = [] if args.suite == 'contour-node' else ['--repeat', str(args.repeat)]   # that suite has no repeats
-    words = ['memo-ros', 'benchmark', args.suite, *repeat] + (['--json'] if args.json else [])
+    if args.suite == 'graph':
+        options = bench_graph.command_words(args)
+    else:
+        options = [] if args.suite == 'contour-node' else ['--repeat', str(args.repeat)]   # that suite has no repeats
+    words = ['memo-ros', 'benchmark', args.suite, *options] + (['--json'] if args.json else [])
     return shlex.join(words)
 
 
