@@ -51,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
     if args.rate < 0 or args.frame_timeout <= 0:
         raise CliError('--rate must not be negative and --frame-timeout must be positive')
     cameras = Studio.load(studio_file).camera_names
+    missing = [t for t in (f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES) if t not in _bag_topics(args.bag)]
+    if missing:
+        raise CliError(f'{args.bag} lacks the studio\'s camera topics {", ".join(missing)}')
     report = replay(args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout)
     print(f"replayed   {report['frames']} frames of {args.bag} in {report['seconds']:.1f} s "
           f"({report['frames'] / max(report['seconds'], 1e-9):.1f} frames/s)")
@@ -59,6 +62,16 @@ def run(args: argparse.Namespace) -> int:
     print(f"recorded   {args.out}: " + ', '.join(f'{t} {n}' for t, n in sorted(report['recorded'].items())))
     print(f"node logs  {report['log']}")
     return 0 if report['graph_ok'] else 1
+
+
+def _bag_topics(bag: Path) -> dict[str, str]:
+    """The bag's topics, read before anything is launched: an unreadable bag is a one-line error."""
+    from memo_ros.tools.bagio import BagError, bag_topics
+    from memo_ros.tools.cli import CliError
+    try:
+        return bag_topics(bag)
+    except BagError as exc:
+        raise CliError(str(exc)) from None
 
 
 def frame_stamp(data: bytes) -> int:
