@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from memo_ros.tools.proc_stats import children, cpu_seconds, log_tail, peak_rss_mb, stop_process
+from memo_ros.tools.proc_stats import children, cpu_seconds, log_tail, peak_rss_mb, rss_mb, stop_process
 
 SCENARIO = 'studio-arm'
 SIZE = (640, 480)
@@ -48,6 +48,7 @@ SETTLE = 2.0                 # s after matching (the nodes' readers match the pl
 DRAIN_IDLE = 10.0            # s without any output after playback: the graph is done (a re-initialisation
                              # from the silhouettes can keep the tracker quiet for seconds)
 DRAIN_TIMEOUT = 60.0
+RSS_PERIOD = 2.0             # s between resident-memory samples of every process
 DIAGNOSTICS_WAIT = 3.0       # s for every node's diagnostics after the drain (they come once a second)
 STOP_TIMEOUT = 15.0          # s for the launcher to stop its nodes after SIGINT
 SUSTAINED = 0.98             # output rate at least this fraction of the input rate: the graph keeps pace
@@ -88,12 +89,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f'graph: first frames of the bag left out of the statistics (default {WARMUP})')
     parser.add_argument('--bag', type=Path,
                         help='graph: play this bag (studio YAML beside it as BAG.yaml) instead of simulating one')
+    parser.add_argument('--loops', type=int, default=1,
+                        help='graph: play the bag this many times in a row, stamps going on (a soak; default 1)')
     parser.add_argument('--out', type=Path, help='also write the report as JSON to this file')
 
 
 def command_words(args: argparse.Namespace) -> list[str]:
     """This suite's options as command-line words (for the report's command line)."""
-    words = ['--rates', args.rates, '--warmup', str(args.warmup)]
+    words = ['--rates', args.rates, '--warmup', str(args.warmup)] + (['--loops', str(args.loops)] if args.loops > 1 else [])
     return words + (['--bag', str(args.bag)] if args.bag else ['--frames', str(args.frames)])
 
 
@@ -112,13 +115,13 @@ def measure(args: argparse.Namespace) -> dict:
         rates = parse_rates(args.rates)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    if args.frames < 1 or args.warmup < 0:
-        raise CliError('--frames must be at least 1 and --warmup not negative')
+    if args.frames < 1 or args.warmup < 0 or args.loops < 1:
+        raise CliError('--frames and --loops must be at least 1 and --warmup not negative')
     if args.bag is not None:
         studio = args.bag.with_name(args.bag.name + '.yaml')
         if not args.bag.exists() or not studio.is_file():
             raise CliError(f'need the bag {args.bag} and its studio file {studio}')
-    return run_graph_benchmark(rates, args.frames, args.warmup, args.bag)
+    return run_graph_benchmark(rates, args.frames, args.warmup, args.bag, loops=args.loops)
 
 
 # ------------------------------------------------------------------ frames
@@ -161,16 +164,22 @@ class Restamper:
         self.on_frame = on_frame
         self.frames: dict[int, FrameTrace] = {}       # new stamp -> trace
         self.messages: dict[str, int] = {}            # topic -> messages published
-        self._stamps: dict[int, int] = {}             # bag stamp -> new stamp
+        self._stamps: dict[tuple[int, int], int] = {}   # (pass through the bag, bag stamp) -> new stamp
         self._lock = threading.Lock()
+        self._player = threading.local()              # each player thread counts its own passes
 
     def before_publish(self, item) -> None:
         original = header_stamp_ns(item.data)
+        player = self._player
+        if original < getattr(player, 'last', original):      # the bag starts again (--loops)
+            player.passes = getattr(player, 'passes', 0) + 1
+        player.last = original
+        key = (getattr(player, 'passes', 0), original)
         with self._lock:
-            stamp = self._stamps.get(original)
+            stamp = self._stamps.get(key)
             if stamp is None:
                 newest = max(self._stamps.values(), default=0)
-                stamp = self._stamps[original] = max(time.time_ns(), newest + 1)
+                stamp = self._stamps[key] = max(time.time_ns(), newest + 1)
                 trace = self.frames[stamp] = FrameTrace(len(self.frames), stamp)
                 if self.on_frame is not None:
                     self.on_frame(trace)
@@ -309,8 +318,8 @@ def cpu_snapshot(pids: dict[int, str]) -> tuple[float, dict[int, float]]:
 
 
 def run_rate(bag: Path, studio_file: Path, cameras: list[str], expected_nodes: int, rate_hz: float,
-             bag_hz: float, warmup: int, domain_id: int, env: dict, log: Path) -> dict:
-    """Launch a fresh graph, play the bag into it at ``rate_hz`` frames/s, and measure it."""
+             bag_hz: float, warmup: int, domain_id: int, env: dict, log: Path, loops: int = 1) -> dict:
+    """Launch a fresh graph, play the bag into it ``loops`` times at ``rate_hz`` frames/s, and measure it."""
     from memo_ros.ros.dds import ros_session
     from memo_ros.tools.bag import BagPlayer, PlayOptions
     from memo_ros.tools.cli import CliError
@@ -331,6 +340,7 @@ def run_rate(bag: Path, studio_file: Path, cameras: list[str], expected_nodes: i
                 window['end'] = cpu_snapshot(pids)
 
         restamper = Restamper(on_frame)
+        rss_samples: list[tuple[int, dict[int, float | None]]] = []      # (frames published, pid -> MB)
         with ros_session('memo_graph_benchmark', domain_id) as (node, executor):
             probe = Probe(node, cameras, restamper.frames, on_processed)
             selector = any(label == 'selector_node' for label in nodes.values())
@@ -346,12 +356,17 @@ def run_rate(bag: Path, studio_file: Path, cameras: list[str], expected_nodes: i
                 _wait_for_graph(node, executor, players, probe, set(nodes.values()), launch, log)
                 window['idle'] = _settle(executor, pids)
                 stop = threading.Event()
-                threads = [threading.Thread(target=p.play, args=(stop,), daemon=True) for p in players]
+                threads = [threading.Thread(target=_play_passes, args=(p, stop, loops), daemon=True)
+                           for p in players]
                 for thread in threads:
                     thread.start()
                 try:
+                    next_sample = 0.0
                     while any(thread.is_alive() for thread in threads):
                         executor.spin_once(timeout_sec=0.02)
+                        if time.monotonic() >= next_sample:         # memory over the run (a soak's growth)
+                            rss_samples.append((len(restamper.frames), _rss(pids)))
+                            next_sample = time.monotonic() + RSS_PERIOD
                 finally:
                     stop.set()
                     for thread in threads:
@@ -364,6 +379,7 @@ def run_rate(bag: Path, studio_file: Path, cameras: list[str], expected_nodes: i
                         any(probe.diagnostics.get(n, {}).get('time', 0.0) < drained for n in nodes.values()):
                     executor.spin_once(timeout_sec=0.05)
                 peak_rss = {pid: _peak_rss(pid) for pid in pids}
+                rss_samples.append((len(restamper.frames), _rss(pids)))
                 if launch.poll() is not None:
                     raise CliError(f'the graph stopped during the benchmark: {log_tail(log)}')
             finally:
@@ -371,7 +387,42 @@ def run_rate(bag: Path, studio_file: Path, cameras: list[str], expected_nodes: i
                     player.close()
     finally:
         stop_graph(launch, nodes)
-    return rate_figures(rate_hz, cameras, warmup, restamper, probe, pids, window, peak_rss)
+    result = rate_figures(rate_hz, cameras, warmup, restamper, probe, pids, window, peak_rss)
+    result['loops'] = loops
+    result['memory'] = memory_growth(pids, rss_samples, warmup)
+    return result
+
+
+def _play_passes(player, stop: threading.Event, passes: int) -> None:
+    """Play the bag ``passes`` times in a row (the Restamper sees it start again and stamps on)."""
+    for _ in range(passes):
+        if stop.is_set() or player.play_once(stop) == 0:
+            break
+
+
+def _rss(pids: dict[int, str]) -> dict[int, float | None]:
+    out = {}
+    for pid in pids:
+        try:
+            out[pid] = rss_mb(pid)
+        except OSError:
+            out[pid] = None
+    return out
+
+
+def memory_growth(pids: dict[int, str], samples: list[tuple[int, dict]], warmup: int) -> list[dict]:
+    """Per process: resident memory once warm (the first sample after the warm-up frames and a tenth of
+    the run), at the end, and the growth between them, MB."""
+    rows = []
+    total = samples[-1][0] if samples else 0
+    warm = [s for s in samples if s[0] >= max(warmup, total // 10)] or samples
+    for pid, label in pids.items():
+        start = next((mb[pid] for _, mb in warm if mb.get(pid) is not None), None)
+        end = next((mb[pid] for _, mb in reversed(samples) if mb.get(pid) is not None), None)
+        rows.append({'process': label, 'rss_warm_mb': start, 'rss_end_mb': end,
+                     'growth_mb': end - start if start is not None and end is not None else None,
+                     'samples': len(samples)})
+    return rows
 
 
 def _peak_rss(pid: int) -> float | None:
@@ -581,7 +632,7 @@ def target_check(r: dict) -> dict | None:
 
 
 def run_graph_benchmark(rates=RATES, frames: int = FRAMES, warmup: int = WARMUP, bag: Path | None = None,
-                        domain_id: int | None = None) -> dict:
+                        domain_id: int | None = None, loops: int = 1) -> dict:
     """Simulate the bag once (unless given), then run a fresh graph at every rate; the report."""
     from memo_ros.core.imaging import ImagingOptions
     from memo_ros.core.studio import Studio
@@ -614,7 +665,7 @@ def run_graph_benchmark(rates=RATES, frames: int = FRAMES, warmup: int = WARMUP,
         expected = len(graph_commands(studio, studio_file))
         try:
             rows = [run_rate(bag, studio_file, cameras, expected, rate, bag_hz, warmup, domain_id, env,
-                             Path(tmp) / f'graph_{k}.log') for k, rate in enumerate(rates)]
+                             Path(tmp) / f'graph_{k}.log', loops) for k, rate in enumerate(rates)]
         finally:
             if own_profile:
                 os.environ.pop(PROFILES_VARIABLE, None)
@@ -697,6 +748,12 @@ def print_graph_benchmark(report: dict) -> None:
           f'and fed nothing ({SETTLE:g} s before playback); CPU ms/f = CPU time per frame the node worked on '
           '(tracker: tracked, not skipped); frame ms = median of the per-frame work time the node reports on '
           '/diagnostics (once a second); RSS = peak (VmHWM)')
+    for r in rows:
+        growth = [m for m in r.get('memory', []) if m['growth_mb'] is not None]
+        if growth:
+            print(f'{r["rate_hz"]:.0f} Hz, bag played {r.get("loops", 1)}x: resident memory warm -> end (growth), MB: '
+                  + ', '.join(f'{m["process"]} {m["rss_warm_mb"]:.0f} -> {m["rss_end_mb"]:.0f} '
+                              f'({m["growth_mb"]:+.1f})' for m in growth))
     print()
     print('node drop counters (whole run, warm-up included), from /diagnostics:')
     for r in rows:

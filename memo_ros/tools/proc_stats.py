@@ -21,13 +21,22 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS   # fields 14 and 15 of proc(5)
 
 
-def peak_rss_mb(pid: int) -> float | None:
-    """VmHWM of process ``pid``, MB (None when unavailable)."""
+def _status_mb(pid: int, key: str) -> float | None:
     with open(f'/proc/{pid}/status') as f:
         for line in f:
-            if line.startswith('VmHWM:'):
+            if line.startswith(key):
                 return int(line.split()[1]) / 1024.0
     return None
+
+
+def peak_rss_mb(pid: int) -> float | None:
+    """VmHWM of process ``pid``, MB (None when unavailable)."""
+    return _status_mb(pid, 'VmHWM:')
+
+
+def rss_mb(pid: int) -> float | None:
+    """VmRSS of process ``pid`` now, MB (None when unavailable)."""
+    return _status_mb(pid, 'VmRSS:')
 
 
 def children(pid: int) -> dict[int, list[str]]:
