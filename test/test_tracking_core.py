@@ -6,16 +6,17 @@ import pytest
 
 from memo_ros.core.body import PART_NAMES, load_default_body
 from memo_ros.core.contours import occluding_contours, silhouette_outlines
-from memo_ros.core.correspondence import assign_forces, contour_rays, on_outline, outline_candidates
+from memo_ros.core.correspondence import (Candidates, ContourRays, assign_forces, contour_rays, on_outline,
+                                          outline_candidates, ray_part_hits, rig_on_outline, rig_outline_candidates)
 from memo_ros.core.ekf import ArticulatedEKF, Measurements
-from memo_ros.core.kinematic_jacobian import chain_axes, point_jacobian
-from memo_ros.core.model_nodes import model_nodes
+from memo_ros.core.kinematic_jacobian import chain_axes, point_jacobian, projected_rows
+from memo_ros.core.model_nodes import fan_alignment, model_nodes
 from memo_ros.core.motion import (ConstantVelocity, coordinate_rates, coordinates_from_names, local_difference,
                                   retract, right_jacobian, tangent_rates)
 from memo_ros.core.render import render
 from memo_ros.core.rotations import rotvec_to_matrix
 from memo_ros.core.scenarios import make_scenario
-from memo_ros.core.tracking import LOST, TRACKING, WAITING, ArticulatedTracker, TrackerSettings
+from memo_ros.core.tracking import LOST, TRACKING, WAITING, ArticulatedTracker, FirstOutline, TrackerSettings
 
 BODY = load_default_body()
 
@@ -69,6 +70,107 @@ def test_point_jacobian_matches_finite_differences_of_forward_kinematics():
         r2, o2 = BODY.forward_kinematics(retract(q, delta, groups))
         moved = np.einsum('pij,pj->pi', r2, local) + o2
         assert np.allclose((moved - points) / h, L[:, :, c], atol=1e-5), BODY.coordinate_names[c]
+
+
+def test_projected_rows_equal_the_point_jacobian_contracted_with_g():
+    q = _random_pose(6)
+    rotations, origins = BODY.forward_kinematics(q)
+    rng = np.random.default_rng(7)
+    parts = rng.integers(0, len(PART_NAMES), 50)
+    points = origins[parts] + rng.normal(0, 0.2, (50, 3))
+    g = rng.normal(0, 1, (50, 3))
+    chain = chain_axes(BODY, q, rotations, origins)
+    expected = np.einsum('ni,nij->nj', g, point_jacobian(chain, parts, points))
+    assert np.allclose(projected_rows(chain, parts, points, g), expected, atol=1e-12)
+
+
+def test_ray_part_hits_find_the_renderers_nearest_part_and_depth():
+    scenario = make_scenario('studio-arm', BODY)
+    q, _ = scenario.coordinates(np.array([1.0]))
+    rotations, origins = BODY.forward_kinematics(q[0])
+    for cam in scenario.cameras:
+        image = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths)
+        rays = cam.pixel_grid_rays()[::3, ::3].reshape(-1, 3)       # pixel centres, as the renderer casts them
+        ray, part, dist = ray_part_hits([cam], np.zeros(len(rays), int), rays, rotations, origins,
+                                        BODY.semi_axes, BODY.lengths)
+        nearest = np.full(len(rays), np.inf)
+        np.minimum.at(nearest, ray, dist)
+        label = np.zeros(len(rays), int)
+        first = dist == nearest[ray]
+        label[ray[first]] = part[first] + 1
+        expected = image.label[::3, ::3].reshape(-1)
+        agree = label == expected
+        assert expected.any() and agree.mean() > 0.999, cam.name      # grazing rays may round either way
+        depth = nearest * (rays @ cam.R_world_cam[:, 2])
+        seen = agree & (label > 0)
+        assert np.allclose(depth[seen], image.depth[::3, ::3].reshape(-1)[seen], rtol=1e-5), cam.name
+
+
+def test_rig_batches_equal_the_per_camera_candidates_and_outline_tests():
+    scenario = make_scenario('studio-walk', BODY)
+    q, _ = scenario.coordinates(np.array([0.7]))
+    rotations, origins = BODY.forward_kinematics(q[0])
+    nodes = model_nodes(BODY)
+    cams = scenario.cameras
+    rig = rig_outline_candidates(cams, nodes, rotations, origins)
+    keys = [np.sort(c.key)[::2] for c in rig]
+    for k, cam in enumerate(cams):
+        for batch, single in ((rig[k], outline_candidates(cam, nodes, rotations, origins)),
+                              (rig_outline_candidates(cams, nodes, rotations, origins, keys)[k],
+                               outline_candidates(cam, nodes, rotations, origins, keys[k]))):
+            for name in ('part', 'points', 'normal', 'cap', 'rim', 'uv', 'key'):
+                assert np.array_equal(getattr(batch, name), getattr(single, name)), (cam.name, name)
+    flags = rig_on_outline(cams, rig, rotations, origins, BODY.semi_axes, BODY.lengths)
+    lazy = FirstOutline(cams, rig, rotations, origins, BODY, 2.0)
+    some = [np.arange(0, len(c), 3) for c in rig]
+    for k, cam in enumerate(cams):
+        single = on_outline(cam, rig[k], rotations, origins, BODY.semi_axes, BODY.lengths)
+        assert np.array_equal(flags[k], single) and 0 < single.sum() < len(single), cam.name
+        assert np.array_equal(lazy.usable(some)[k], single[some[k]])      # tested on demand ...
+    assert all(np.array_equal(u, f) for u, f in zip(lazy.usable([np.arange(len(c)) for c in rig]), flags))  # ... or all
+
+
+def _reference_assignment(rays, cand, epsilon, gate):
+    """Brute force Steps 2-3: per sample, the first of its 8 nearest candidates within the gate passing eq. 13."""
+    out = []
+    for s, uv in enumerate(rays.uv):
+        d = np.hypot(*(cand.uv - uv).T)
+        for c in np.argsort(d)[:8]:
+            if d[c] >= gate:
+                break
+            side = cand.normal[c] @ rays.k[s]
+            fan = fan_alignment(cand.normal[c:c + 1], cand.cap[c:c + 1], rays.k[s:s + 1])[0]
+            if (fan if cand.rim[c] else side) >= epsilon[cand.part[c]]:
+                if cand.usable is None or cand.usable[c]:
+                    out.append((s, c))
+                break
+    return out
+
+
+def test_assignment_takes_the_first_compatible_of_the_eight_nearest_candidates():
+    rng = np.random.default_rng(8)
+    n_s, n_c = 400, 300
+    unit = lambda a: a / np.linalg.norm(a, axis=1, keepdims=True)
+    rays = ContourRays(rng.uniform(0, 200, (n_s, 2)), unit(rng.normal(0, 1, (n_s, 2))), unit(rng.normal(0, 1, (n_s, 3))))
+    rim = rng.random(n_c) < 0.5
+    cand = Candidates(rng.integers(0, 4, n_c), rng.normal(0, 1, (n_c, 3)), unit(rng.normal(0, 1, (n_c, 3))),
+                      np.where(rim[:, None], unit(rng.normal(0, 1, (n_c, 3))), 0.0), rim, rng.uniform(0, 200, (n_c, 2)))
+    epsilon = np.array([0.9, 0.5, 0.0, -0.5])
+    m = assign_forces(rays, cand, epsilon, 12.0)
+    reference = _reference_assignment(rays, cand, epsilon, 12.0)
+    assert 0 < len(reference) < n_s and list(zip(m.sample, m.node)) == reference
+    cand.usable = rng.random(n_c) < 0.7
+    m = assign_forces(rays, cand, epsilon, 12.0)
+    assert list(zip(m.sample, m.node)) == _reference_assignment(rays, cand, epsilon, 12.0)
+
+
+def test_samples_within_a_radius_agree_with_the_kd_tree():
+    rng = np.random.default_rng(9)
+    rays = ContourRays(rng.uniform(100, 300, (500, 2)), np.zeros((500, 2)), np.zeros((500, 3)))
+    points = rng.uniform(0, 400, (3000, 2))
+    for radius in (3.0, 12.5, 50.0):
+        expected = np.isfinite(rays.tree.query(points, k=1, distance_upper_bound=radius)[0])
+        assert np.array_equal(rays.within(points, radius), expected) and 0 < expected.sum() < len(points)
 
 
 def test_force_assignment_at_the_true_pose_leaves_subpixel_residuals_and_matching_normals():

@@ -113,6 +113,8 @@ class Body:
             n = 3 if j.axes == 'ball' else len(j.axes)
             self._slices[j.name] = slice(start, start + n)
             start += n
+        self._rests = np.array([j.rest for j in self.joints])
+        self._joint_kinds = _joint_kinds(self.joints, self._slices)
         self.lengths = np.array([self.shapes[p].length for p in PART_NAMES])
         self.semi_axes = np.array([[self.shapes[p].a, self.shapes[p].b] for p in PART_NAMES])
 
@@ -143,23 +145,27 @@ class Body:
         origins = np.empty(batch + (len(PART_NAMES), 3))
         rotations[..., 0, :, :] = rotvec_to_matrix(q[..., 3:6])
         origins[..., 0, :] = q[..., 0:3]
-        for j in self.joints:
-            local = j.rest @ self.joint_rotation(j, q[..., self._slices[j.name]])
+        local = self._rests @ self._joint_rotations(q)                 # every child's frame in its parent's
+        for k, j in enumerate(self.joints):
             parent_r = rotations[..., j.parent, :, :]
-            rotations[..., j.child, :, :] = parent_r @ local
+            rotations[..., j.child, :, :] = parent_r @ local[..., k, :, :]
             origins[..., j.child, :] = origins[..., j.parent, :] + parent_r @ j.offset
         return rotations, origins
 
-    @staticmethod
-    def joint_rotation(joint: JointSpec, values: np.ndarray) -> np.ndarray:
-        """Rotation of a joint in its child's rest frame from its coordinates."""
-        if joint.axes == 'ball':
-            return rotvec_to_matrix(values)
-        result = None
-        for k, axis in enumerate(joint.axes):
-            r = _ELEMENTARY[axis](values[..., k])
-            result = r if result is None else result @ r
-        return result
+    def _joint_rotations(self, q: np.ndarray) -> np.ndarray:
+        """Rotation of every joint in its child's rest frame (..., J, 3, 3) from the coordinates (..., n): ball
+        joints are rotation vectors; hinge-like joints the product of elementary rotations in the order written,
+        each kind of joint computed in one batch."""
+        out = np.empty(q.shape[:-1] + (len(self.joints), 3, 3))
+        for axes, joints, cols in self._joint_kinds:
+            if axes == 'ball':
+                out[..., joints, :, :] = rotvec_to_matrix(q[..., cols])
+                continue
+            r = _ELEMENTARY[axes[0]](q[..., cols[:, 0]])
+            for k in range(1, len(axes)):
+                r = r @ _ELEMENTARY[axes[k]](q[..., cols[:, k]])
+            out[..., joints, :, :] = r
+        return out
 
     def joint_centres(self, origins: np.ndarray) -> np.ndarray:
         """Centres of the pelvis and the 13 joints (..., 14, 3): the points MPJPE is measured on."""
@@ -210,6 +216,16 @@ class Body:
         if not isinstance(data, dict) or 'body' not in data:
             raise ValueError(f'{path}: no "body" mapping')
         return cls.from_dict(data['body'])
+
+
+def _joint_kinds(joints: tuple[JointSpec, ...], slices: dict[str, slice]) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Joints grouped by their axes: (axes, joint indices (m,), coordinate indices (m, axes' count))."""
+    kinds: dict[str, list[int]] = {}
+    for k, j in enumerate(joints):
+        kinds.setdefault(j.axes, []).append(k)
+    return [(axes, np.array(members), np.array([range(slices[joints[k].name].start, slices[joints[k].name].stop)
+                                                for k in members]))
+            for axes, members in kinds.items()]
 
 
 def default_joint_offsets(shapes: dict[str, PartShape]) -> dict[str, np.ndarray]:

@@ -32,6 +32,7 @@ NEIGHBOURS = 8             # nearest projected candidates examined per contour s
 RAY_TOLERANCE_M = 0.01     # the same for the exact ray test
 RIM_VIEW_COS = 0.35        # a rim node may be on the outline when its fan holds a normal within ~20 deg of perpendicular
 OUTLINE_PROBE_PX = 2.0     # a node is on the outline when the body leaves background this far outside it
+_BOX_CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 1.0)])
 
 
 @dataclass
@@ -51,6 +52,29 @@ class ContourRays:
             self._tree = cKDTree(self.uv)
         return self._tree
 
+    def within(self, uv: np.ndarray, radius: float) -> np.ndarray:
+        """(C,) True where some sample lies closer than ``radius`` px to each finite point ``uv`` (C, 2).
+
+        A grid of cells whose diagonal is under ``radius`` settles every point sharing a cell with a sample;
+        only the others are looked up in the KD-tree (the same answer, without a query per point)."""
+        out = np.zeros(len(uv), bool)
+        if not len(self.uv) or not len(uv):
+            return out
+        cell = radius / np.sqrt(2.0) * (1.0 - 1e-9)
+        lo = np.floor(self.uv.min(axis=0) / cell)
+        ij = (np.floor(self.uv / cell) - lo).astype(np.intp)
+        shape = ij.max(axis=0) + 1
+        occupied = np.zeros(shape, bool)
+        occupied[ij[:, 0], ij[:, 1]] = True
+        kl = np.floor(uv / cell) - lo
+        inside = np.all((kl >= 0) & (kl < shape), axis=1)
+        kl = kl[inside].astype(np.intp)
+        out[np.flatnonzero(inside)[occupied[kl[:, 0], kl[:, 1]]]] = True
+        rest = np.flatnonzero(~out)
+        if len(rest):
+            out[rest] = np.isfinite(self.tree.query(uv[rest], k=1, distance_upper_bound=radius)[0])
+        return out
+
 
 def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
     """(N,) px along the outward normal that undo the contour's Gaussian smoothing to first order.
@@ -65,8 +89,8 @@ def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
     if smoothing <= 0 or n < 3:
         return np.zeros(n)
     contour = np.asarray(table['contour'])
-    starts = np.flatnonzero(np.r_[True, contour[1:] != contour[:-1]])
-    lengths = np.diff(np.r_[starts, n])
+    starts = np.flatnonzero(np.concatenate(([True], contour[1:] != contour[:-1])))
+    lengths = np.diff(starts, append=n)
     start = np.repeat(starts, lengths)
     length = np.repeat(lengths, lengths)
     pos = np.arange(n) - start
@@ -93,17 +117,17 @@ def contour_rays(camera: Camera, table: np.ndarray, smoothing: float = 0.0, shif
     bias = smoothing_shift(table, smoothing)
     if shift:
         x, y = x + bias * outward[:, 0], y + bias * outward[:, 1]
-    d = camera.pixel_rays(np.concatenate([x, x + tx]), np.concatenate([y, y + ty]))   # one undistortion call
-    d_z, d_t = d[:len(x)], d[len(x):]
-    k = np.cross(d_z, d_t)
-    k /= np.maximum(np.linalg.norm(k, axis=1, keepdims=True), 1e-12)
     # orient k out of the silhouette: the camera maps image orientation consistently, so one outward ray
     # (of a sample with a tangent) fixes the sign for all
-    j = int(np.argmax(np.hypot(tx, ty))) if len(x) else 0
-    if len(x):
-        d_o = camera.pixel_rays(x[j:j + 1] + outward[j:j + 1, 0], y[j:j + 1] + outward[j:j + 1, 1])[0]
-        if k[j] @ d_o < 0:
-            k = -k
+    n = len(x)
+    j = int(np.argmax(np.hypot(tx, ty))) if n else 0
+    d = camera.pixel_rays(np.concatenate([x, x + tx, x[j:j + 1] + outward[j:j + 1, 0]]),   # one undistortion call
+                          np.concatenate([y, y + ty, y[j:j + 1] + outward[j:j + 1, 1]]))
+    d_z, d_t = d[:n], d[n:2 * n]
+    k = d_z[:, [1, 2, 0]] * d_t[:, [2, 0, 1]] - d_z[:, [2, 0, 1]] * d_t[:, [1, 2, 0]]   # d_z x d_t
+    k /= np.maximum(np.linalg.norm(k, axis=1, keepdims=True), 1e-12)
+    if n and k[j] @ d[2 * n] < 0:
+        k = -k
     return ContourRays(np.stack([x, y], -1), outward, k, bias)
 
 
@@ -118,7 +142,6 @@ class Candidates:
     rim: np.ndarray        # (C,) bool
     uv: np.ndarray         # (C, 2)
     key: np.ndarray | None = None       # (C,) identity of the node (ring and generator side, or rim node)
-    outline: np.ndarray | None = None   # (C, 3) unit outward normal of the outline at the node, across the ray
     usable: np.ndarray | None = None    # (C,) on the predicted outline; None = all.  The others only absorb
                                         # the samples nearest to them (ambiguous: a narrow gap, a hidden edge)
 
@@ -126,10 +149,11 @@ class Candidates:
         return len(self.part)
 
     def subset(self, keep: np.ndarray) -> 'Candidates':
-        """The candidates selected by a mask or index array."""
+        """The candidates selected by a mask or index array (these candidates themselves when a mask keeps all)."""
+        if keep.dtype == bool and len(keep) == len(self) and keep.all():
+            return self
         return Candidates(self.part[keep], self.points[keep], self.normal[keep], self.cap[keep], self.rim[keep],
                           self.uv[keep], None if self.key is None else self.key[keep],
-                          None if self.outline is None else self.outline[keep],
                           None if self.usable is None else self.usable[keep])
 
 
@@ -138,71 +162,127 @@ def outline_candidates(camera: Camera, nodes: ModelNodes, rotations: np.ndarray,
     """Every node that can be on an outline by its own shape: the generator points of each side ring and the
     rim nodes whose normal fan can face across the ray (no test against the other parts); only the nodes
     named by ``keys`` (see :attr:`Candidates.key`) when given."""
-    centre = np.asarray(camera.t_world_cam, float)
+    return rig_outline_candidates([camera], nodes, rotations, origins, None if keys is None else [keys])[0]
+
+
+def rig_outline_candidates(cameras: list[Camera], nodes: ModelNodes, rotations: np.ndarray, origins: np.ndarray,
+                           keys: list[np.ndarray] | None = None) -> list[Candidates]:
+    """:func:`outline_candidates` of every camera (``keys`` per camera when given), computed in one batch: the
+    nodes of all cameras go through the same array operations, side nodes before rim nodes within a camera."""
+    n_cams, n_keys = len(cameras), 2 * len(nodes)
+    centres = np.array([np.asarray(c.t_world_cam, float) for c in cameras])
+    centre_local = _rotate(rotations.transpose(0, 2, 1)[None], centres[:, None] - origins)   # (K, P, 3) R^T (c - o)
     # side: one node per ring and generator (the ring's nodes nearest the two generator lines, moved onto them)
     if keys is None:
-        idx = np.concatenate([nodes.ring_starts, nodes.ring_starts])
-        sign = np.repeat([1.0, -1.0], len(nodes.ring_starts))
-        rim_sel = np.arange(len(nodes.rim_index))
+        idx = np.tile(nodes.side_index, n_cams)
+        sign = np.tile(nodes.side_sign, n_cams)
+        cam_s = np.repeat(np.arange(n_cams), len(nodes.side_index))
+        rim_idx, cam_r = np.tile(nodes.rim_index, n_cams), np.repeat(np.arange(n_cams), len(nodes.rim_index))
+        rim_local, rim_n = np.tile(nodes.rim_points, (n_cams, 1)), np.tile(nodes.rim_normals, (n_cams, 1))
     else:
-        side_keys = keys[keys < 2 * len(nodes)]
-        idx, sign = side_keys // 2, np.where(side_keys % 2 == 0, 1.0, -1.0)
-        rim_sel = np.searchsorted(nodes.rim_index, keys[keys >= 2 * len(nodes)] - 2 * len(nodes))
-    part_s = nodes.part[idx]
-    centre_local = np.einsum('mji,mj->mi', rotations[part_s], centre - origins[part_s])
-    theta = _generator(nodes, centre_local, idx, sign)
-    key_side = 2 * idx + (sign < 0)
+        all_keys = np.concatenate(keys)
+        cam_k = np.repeat(np.arange(n_cams), [len(k) for k in keys])
+        side = all_keys < n_keys
+        idx, sign, cam_s = all_keys[side] // 2, np.where(all_keys[side] % 2 == 0, 1.0, -1.0), cam_k[side]
+        rim_sel, cam_r = np.searchsorted(nodes.rim_index, all_keys[~side] - n_keys), cam_k[~side]
+        rim_idx, rim_local, rim_n = nodes.rim_index[rim_sel], nodes.rim_points[rim_sel], nodes.rim_normals[rim_sel]
+    theta = _generator(nodes, centre_local[cam_s, nodes.part[idx]], idx, sign)
     ok = np.isfinite(theta)
-    idx2, theta, key_side = idx[ok], theta[ok], key_side[ok]
-    local = np.stack([nodes.a[idx2] * np.cos(theta), nodes.b[idx2] * np.sin(theta), nodes.z[idx2]], -1)
-    n_local = np.stack([np.cos(theta) / nodes.a[idx2], np.sin(theta) / nodes.b[idx2], np.zeros_like(theta)], -1)
-    n_local /= np.linalg.norm(n_local, axis=1, keepdims=True)
+    idx, theta, cam_s, key_side = idx[ok], theta[ok], cam_s[ok], (2 * idx + (sign < 0))[ok]
+    cos, sin = np.cos(theta), np.sin(theta)
+    local = np.stack([nodes.a[idx] * cos, nodes.b[idx] * sin, nodes.z[idx]], -1)
+    n_local = np.stack([cos / nodes.a[idx], sin / nodes.b[idx], np.zeros_like(theta)], -1)
+    n_local /= _norm(n_local)[:, None]
     # rims: nodes whose normal fan holds a direction (nearly) perpendicular to the ray
-    rim_idx = nodes.rim_index[rim_sel]
-    rim_local = nodes.rim_points[rim_sel]
-    rim_n = nodes.rim_normals[rim_sel]
-    rim_cap = nodes.rim_caps[rim_sel]
-    part_r = nodes.part[rim_idx]
-    view = rim_local - np.einsum('mji,mj->mi', rotations[part_r], centre - origins[part_r])
-    s_dot, c_dot = np.einsum('mi,mi->m', rim_n, view), np.einsum('mi,mi->m', rim_cap, view)
-    norm = np.linalg.norm(view, axis=1)
+    rim_sign = nodes.rim[rim_idx]                                              # cap normal (0, 0, rim_sign)
+    view = rim_local - centre_local[cam_r, nodes.part[rim_idx]]
+    s_dot, c_dot = _dot(rim_n, view), rim_sign * view[:, 2]
+    norm = _norm(view)
     keep = (s_dot * c_dot <= 0) | (np.abs(s_dot) <= RIM_VIEW_COS * norm) | (np.abs(c_dot) <= RIM_VIEW_COS * norm)
-    part = np.concatenate([nodes.part[idx2], nodes.part[rim_idx[keep]]])
+    # camera by camera, each camera's side nodes before its rim nodes
+    cam = np.concatenate([cam_s, cam_r[keep]])
+    order = np.argsort(cam, kind='stable')
+    part = np.concatenate([nodes.part[idx], nodes.part[rim_idx[keep]]])[order]
+    cap_sign = np.concatenate([np.zeros(len(idx)), rim_sign[keep]])[order]
+    key = np.concatenate([key_side, n_keys + rim_idx[keep]])[order]
     r = rotations[part]
-    local_all = np.concatenate([local, rim_local[keep]])
-    points = np.einsum('mij,mj->mi', r, local_all) + origins[part]
-    normal = np.einsum('mij,mj->mi', r, np.concatenate([n_local, rim_n[keep]]))
-    cap = np.einsum('mij,mj->mi', r, np.concatenate([np.zeros_like(n_local), rim_cap[keep]]))
-    rim = np.concatenate([np.zeros(len(idx2), bool), np.ones(int(keep.sum()), bool)])
-    key = np.concatenate([key_side, 2 * len(nodes) + rim_idx[keep]])
-    uv = camera.project(points)
-    outline = _outline_normals(points - centre, normal, cap, rim)
-    return Candidates(part, points, normal, cap, rim, uv, key, outline)
+    points = _rotate(r, np.concatenate([local, rim_local[keep]])[order]) + origins[part]
+    normal = _rotate(r, np.concatenate([n_local, rim_n[keep]])[order])
+    cap = r[:, :, 2] * cap_sign[:, None]
+    rim = cap_sign != 0
+    ends = np.cumsum(np.bincount(cam, minlength=n_cams))
+    return [Candidates(part[a:b], points[a:b], normal[a:b], cap[a:b], rim[a:b], c.project(points[a:b]), key[a:b])
+            for c, a, b in zip(cameras, np.concatenate(([0], ends[:-1])), ends)]
+
+
+def _rotate(r: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """r @ v for stacks of 3x3 matrices r (..., 3, 3) and vectors v (..., 3), written out (cheaper than a
+    batched product of so small matrices)."""
+    return r[..., 0] * v[..., 0, None] + r[..., 1] * v[..., 1, None] + r[..., 2] * v[..., 2, None]
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of (M, 3) arrays."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    """Row-wise lengths of an (M, 3) array."""
+    return np.sqrt(_dot(a, a))
 
 
 def _outline_normals(view: np.ndarray, side: np.ndarray, cap: np.ndarray, rim: np.ndarray) -> np.ndarray:
     """Unit normal of the outline at each node, perpendicular to the viewing ray: the generator normal for
     side nodes, and for rim nodes the direction of their fan (side to cap) that is perpendicular to the ray."""
-    v = view / np.linalg.norm(view, axis=1, keepdims=True)
-    s_dot, c_dot = np.einsum('mi,mi->m', side, v), np.einsum('mi,mi->m', cap, v)
+    v = view / _norm(view)[:, None]
+    s_dot, c_dot = _dot(side, v), _dot(cap, v)
     in_fan = rim & (s_dot * c_dot <= 0)
     fan = c_dot[:, None] * side - s_dot[:, None] * cap
-    fan *= np.where(np.einsum('mi,mi->m', fan, side + cap) < 0, -1.0, 1.0)[:, None]
+    fan *= np.where(_dot(fan, side + cap) < 0, -1.0, 1.0)[:, None]
     extreme = np.where((np.abs(s_dot) <= np.abs(c_dot))[:, None], side, cap)
     n = np.where(in_fan[:, None], fan, np.where(rim[:, None], extreme, side))
-    n = n - np.einsum('mi,mi->m', n, v)[:, None] * v
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n = n - _dot(n, v)[:, None] * v
+    return n / np.maximum(_norm(n), 1e-12)[:, None]
 
 
-def ray_hits(centre: np.ndarray, directions: np.ndarray, rotations: np.ndarray, origins: np.ndarray,
-             semi_axes: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Distance (C, P) along each unit ray from ``centre`` to every part's capped elliptic cylinder (inf = miss)."""
-    o = np.einsum('pji,pj->pi', rotations, centre - origins)[:, None, :]  # ray origin in each part frame (P, 1, 3)
-    d = np.matmul(directions[None], rotations)                            # directions in each part frame (P, C, 3)
-    a, b = semi_axes[:, 0, None], semi_axes[:, 1, None]
-    length = lengths[:, None]
-    ox, oy, oz = o[..., 0] / a, o[..., 1] / b, o[..., 2]
-    dx, dy, dz = d[..., 0] / a, d[..., 1] / b, d[..., 2]
+def ray_part_hits(cameras: list[Camera], ray_camera: np.ndarray, directions: np.ndarray, rotations: np.ndarray,
+                  origins: np.ndarray, semi_axes: np.ndarray, lengths: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every hit of the unit rays ``directions`` (R, 3), each from the centre of ``cameras[ray_camera]``, on the
+    parts' capped elliptic cylinders, as (ray, part, distance) arrays.
+
+    A ray is tested exactly only against the parts whose bounding box it meets in its camera's normalised image
+    plane: a box wholly in front of the camera projects inside the bounds of its projected corners, so a ray
+    outside them cannot hit the part (most rays pass far from most parts).
+    """
+    n_parts = len(lengths)
+    centres = np.array([np.asarray(c.t_world_cam, float) for c in cameras])              # (K, 3)
+    r_world_cam = np.array([np.asarray(c.R_world_cam, float) for c in cameras])          # (K, 3, 3)
+    box = _BOX_CORNERS * np.c_[semi_axes, lengths][:, None]                  # (P, 8, 3) in the part frames
+    corners = np.matmul(box, rotations.transpose(0, 2, 1)) + origins[:, None]
+    corners = (corners - centres[:, None, None]) @ r_world_cam[:, None]      # (K, P, 8, 3) in the camera frames
+    depth = corners[..., 2]
+    in_front = np.all(depth > 1e-9, axis=2)
+    plane = corners[..., :2] / np.where(in_front[..., None], depth, 1.0)[..., None]
+    margin = 1e-9 * (1.0 + np.abs(plane).max(axis=2))
+    low = np.where(in_front[..., None], plane.min(axis=2) - margin, -np.inf)             # (K, P, 2)
+    high = np.where(in_front[..., None], plane.max(axis=2) + margin, np.inf)
+    d_cam = _rotate(r_world_cam.transpose(0, 2, 1)[ray_camera], directions)
+    ahead = d_cam[:, 2] > 0
+    ray_plane = np.where(ahead[:, None], d_cam[:, :2], 0.0) / np.where(ahead, d_cam[:, 2], 1.0)[:, None]
+    low, high = low[ray_camera], high[ray_camera]                            # (R, P, 2)
+    near = ((ray_plane[:, None, 0] >= low[..., 0]) & (ray_plane[:, None, 0] <= high[..., 0])
+            & (ray_plane[:, None, 1] >= low[..., 1]) & (ray_plane[:, None, 1] <= high[..., 1]))
+    near &= ahead[:, None] | ~in_front[ray_camera]      # a ray not going ahead cannot meet a box in front
+    pair = np.flatnonzero(near)
+    ray, part = np.divmod(pair, n_parts)
+    # the exact test: rays and cylinders in the part frames, scaled so the cross-section is the unit circle
+    o = _rotate(rotations.transpose(0, 2, 1)[None], centres[:, None] - origins)   # (K, P, 3) ray origins
+    o = o[ray_camera[ray], part]
+    d = (directions @ rotations.transpose(1, 0, 2).reshape(3, -1)).reshape(-1, 3)   # (R * P, 3) directions
+    a, b = semi_axes[part, 0], semi_axes[part, 1]
+    ox, oy, oz, length = o[:, 0] / a, o[:, 1] / b, o[:, 2], lengths[part]
+    dx, dy, dz = d[pair, 0] / a, d[pair, 1] / b, d[pair, 2]
     qa = dx * dx + dy * dy
     qb = 2.0 * (ox * dx + oy * dy)
     qc = ox * ox + oy * oy - 1.0
@@ -216,24 +296,40 @@ def ray_hits(centre: np.ndarray, directions: np.ndarray, rotations: np.ndarray, 
             x = ox + s_cap * dx
             y = oy + s_cap * dy
             best = np.where((s_cap > 0) & (x * x + y * y <= 1.0) & (s_cap < best), s_cap, best)
-    return best.T
+    hit = np.isfinite(best)
+    return ray[hit], part[hit], best[hit]
 
 
 def on_outline(camera: Camera, cand: Candidates, rotations: np.ndarray, origins: np.ndarray,
                semi_axes: np.ndarray, lengths: np.ndarray, probe_px: float = OUTLINE_PROBE_PX) -> np.ndarray:
     """(C,) True where a candidate is on the predicted body's occluding contour: nothing hides it, and the ray
     ``probe_px`` outside it across the outline meets no part (it is not inside another part's silhouette)."""
-    centre = np.asarray(camera.t_world_cam, float)
-    view = cand.points - centre
-    dist = np.linalg.norm(view, axis=1)
-    focal = float(camera.K[0, 0])
-    probe = view + (probe_px * dist / focal)[:, None] * cand.outline   # probe_px in the image, to first order
-    dirs = np.concatenate([view / dist[:, None], probe / np.linalg.norm(probe, axis=1, keepdims=True)])
-    hits = ray_hits(centre, dirs, rotations, origins, semi_axes, lengths)
-    n = len(cand)
-    hidden = np.any(hits[:n] < (dist - RAY_TOLERANCE_M)[:, None], axis=1)
-    covered = np.any(np.isfinite(hits[n:]), axis=1)
-    return ~hidden & ~covered & np.all(np.isfinite(cand.uv), axis=1)
+    return rig_on_outline([camera], [cand], rotations, origins, semi_axes, lengths, probe_px)[0]
+
+
+def rig_on_outline(cameras: list[Camera], cands: list[Candidates], rotations: np.ndarray, origins: np.ndarray,
+                   semi_axes: np.ndarray, lengths: np.ndarray, probe_px: float = OUTLINE_PROBE_PX) -> list[np.ndarray]:
+    """:func:`on_outline` of every camera's candidates, all tested in one batch of rays."""
+    counts = [len(c) for c in cands]
+    node_camera = np.repeat(np.arange(len(cameras)), counts)
+    points = np.concatenate([c.points for c in cands])
+    normal, cap = np.concatenate([c.normal for c in cands]), np.concatenate([c.cap for c in cands])
+    centre = np.array([np.asarray(c.t_world_cam, float) for c in cameras])[node_camera]
+    focal = np.array([float(c.K[0, 0]) for c in cameras])[node_camera]
+    view = points - centre
+    dist = _norm(view)
+    outline = _outline_normals(view, normal, cap, np.concatenate([c.rim for c in cands]))
+    probe = view + (probe_px * dist / focal)[:, None] * outline        # probe_px in the image, to first order
+    dirs = np.concatenate([view / dist[:, None], probe / _norm(probe)[:, None]])
+    ray, _, hit = ray_part_hits(cameras, np.concatenate([node_camera, node_camera]), dirs, rotations, origins,
+                                semi_axes, lengths)
+    n = len(points)
+    to_node = ray < n
+    blocked = np.zeros(2 * n, bool)
+    blocked[ray[to_node][hit[to_node] < dist[ray[to_node]] - RAY_TOLERANCE_M]] = True   # hidden
+    blocked[ray[~to_node]] = True                                                       # covered
+    usable = ~blocked[:n] & ~blocked[n:] & np.all(np.isfinite(np.concatenate([c.uv for c in cands])), axis=1)
+    return np.split(usable, np.cumsum(counts)[:-1])
 
 
 def _generator(nodes: ModelNodes, centre_local: np.ndarray, idx: np.ndarray, sign: np.ndarray) -> np.ndarray:
@@ -258,22 +354,47 @@ class Matches:
 def _alignment(rays: ContourRays, candidates: Candidates, sample: np.ndarray, node: np.ndarray) -> np.ndarray:
     """n . k_z of each (sample, node) pair, over the rim's normal fan for rim nodes (eq. 13's left side)."""
     kz = rays.k[sample]
-    side_align = np.einsum('mi,mi->m', candidates.normal[node], kz)
-    rim_align = fan_alignment(candidates.normal[node], candidates.cap[node], kz)
+    normal = candidates.normal[node]
+    side_align = _dot(normal, kz)
+    rim_align = fan_alignment(normal, candidates.cap[node], kz)
     return np.where(candidates.rim[node], rim_align, side_align)
 
 
-def _first_compatible(dist, idx, n_targets, align_fn, threshold_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rows whose nearest neighbours hold one passing eq. 13: (rows, neighbour index, distance)."""
-    dist, idx = dist.reshape(len(dist), -1), idx.reshape(len(idx), -1)
-    found = idx < n_targets
-    safe = np.where(found, idx, 0)
-    rows = np.repeat(np.arange(len(idx)), idx.shape[1])
-    ok = found & (align_fn(rows, safe.reshape(-1)) >= threshold_fn(rows, safe.reshape(-1))).reshape(safe.shape)
-    has = ok.any(axis=1)
-    first = np.argmax(ok, axis=1)
-    sel = np.flatnonzero(has)
-    return sel, idx[sel, first[sel]], dist[sel, first[sel]]
+def _nearest_compatible(tree: cKDTree, queries: np.ndarray, k: int, gate_px: float,
+                        compatible) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows of ``queries`` whose ``k`` nearest targets in ``tree`` (within ``gate_px``) hold one passing eq. 13,
+    and the nearest such: (rows, target index, distance).  ``compatible(rows, targets)`` is eq. 13 for those pairs.
+
+    The nearest target alone settles almost every row (it is compatible, or nothing is within the gate), so the
+    ``k`` nearest are only looked up for the rows whose nearest failed or ties with the second (targets at the
+    same pixel, then taken in the tree's order of the ``k``): the answer of examining all ``k`` for every row.
+    """
+    if k < 2:
+        dist, idx = tree.query(queries, k=1, distance_upper_bound=gate_px)
+        rows = np.flatnonzero(idx < tree.n)
+        ok = compatible(rows, idx[rows])
+        return rows[ok], idx[rows[ok]], dist[rows[ok]]
+    # nearest targets are mostly far inside the gate: a search within a quarter of it visits less of the tree,
+    # and the rows with nothing that near are searched again within the whole gate (the same two neighbours)
+    dist, idx = tree.query(queries, k=2, distance_upper_bound=0.25 * gate_px)
+    far = np.flatnonzero(idx[:, 0] == tree.n)
+    if len(far):
+        dist[far], idx[far] = tree.query(queries[far], k=2, distance_upper_bound=gate_px)
+    rows = np.flatnonzero(idx[:, 0] < tree.n)
+    ok = compatible(rows, idx[rows, 0]) & (dist[rows, 0] < dist[rows, 1])
+    sel, target, d = rows[ok], idx[rows[ok], 0], dist[rows[ok], 0]
+    retry = rows[~ok]
+    if not len(retry):
+        return sel, target, d
+    dist, idx = tree.query(queries[retry], k=k, distance_upper_bound=gate_px)
+    pair_row, pair_col = np.nonzero(idx < tree.n)
+    passed = np.zeros(idx.shape, bool)
+    passed[pair_row, pair_col] = compatible(retry[pair_row], idx[pair_row, pair_col])
+    has = passed.any(axis=1)
+    first = np.argmax(passed, axis=1)[has]
+    rows = np.concatenate([sel, retry[has]])
+    order = np.argsort(rows, kind='stable')
+    return rows[order], np.concatenate([target, idx[has, first]])[order], np.concatenate([d, dist[has, first]])[order]
 
 
 def assign_forces(rays: ContourRays, candidates: Candidates, epsilon: np.ndarray, gate_px: float,
@@ -283,23 +404,19 @@ def assign_forces(rays: ContourRays, candidates: Candidates, epsilon: np.ndarray
     empty = Matches(np.zeros(0, int), np.zeros(0, int), np.zeros(0))
     if not len(candidates) or not len(rays.uv):
         return empty
-    k = min(NEIGHBOURS, len(candidates))
-    dist, idx = cKDTree(candidates.uv).query(rays.uv, k=k, distance_upper_bound=gate_px)
     eps = epsilon[candidates.part]
-    sample, node, d = _first_compatible(dist, idx, len(candidates),
-                                        lambda s, c: _alignment(rays, candidates, s, c),
-                                        lambda s, c: eps[c])                              # eq. 13
+    sample, node, d = _nearest_compatible(
+        cKDTree(candidates.uv), rays.uv, min(NEIGHBOURS, len(candidates)), gate_px,
+        lambda s, c: _alignment(rays, candidates, s, c) >= eps[c])                         # eq. 13
     if candidates.usable is not None:                 # nearest node not on the outline: ambiguous, dropped
         ok = candidates.usable[node]
         sample, node, d = sample[ok], node[ok], d[ok]
     if not symmetric:
         return Matches(sample, node, d)
-    k = min(NEIGHBOURS, len(rays.uv))
     pullers = np.arange(len(candidates)) if candidates.usable is None else np.flatnonzero(candidates.usable)
-    dist, idx = rays.tree.query(candidates.uv[pullers], k=k, distance_upper_bound=gate_px)
-    node_b, sample_b, d_b = _first_compatible(dist, idx, len(rays.uv),
-                                              lambda c, s: _alignment(rays, candidates, s, pullers[c]),
-                                              lambda c, s: eps[pullers[c]])               # eq. 13
+    node_b, sample_b, d_b = _nearest_compatible(
+        rays.tree, candidates.uv[pullers], min(NEIGHBOURS, len(rays.uv)), gate_px,
+        lambda c, s: _alignment(rays, candidates, s, pullers[c]) >= eps[pullers[c]])       # eq. 13
     node_b = pullers[node_b]
     pair = np.concatenate([sample * len(candidates) + node, sample_b * len(candidates) + node_b])
     _, first = np.unique(pair, return_index=True)

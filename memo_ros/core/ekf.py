@@ -84,15 +84,19 @@ class ArticulatedEKF:
             if not len(m):
                 break
             # innovation covariance per measurement against the prediction: s = h P h^T + sigma^2
-            s = np.sum((m.H @ Ppp) * m.H, axis=1) + m.sigma ** 2
+            s = np.einsum('ij,ij->i', m.H @ Ppp, m.H) + m.sigma ** 2
             # the residual the prior alone would leave: r + H (delta so far)
             innovation = m.r + m.H @ delta[:n]
             keep = innovation ** 2 <= gate ** 2 * s
-            H, w = m.H[keep], 1.0 / m.sigma[keep] ** 2
+            if keep.all():          # the usual case: no copies of H
+                H, w, used = m.H, 1.0 / m.sigma ** 2, innovation
+            else:
+                H, w, used = m.H[keep], 1.0 / m.sigma[keep] ** 2, innovation[keep]
+            H_scaled = H * np.sqrt(w)[:, None]          # H^T W H as one symmetric product
             info = info0.copy()
-            info[:n, :n] += (H * w[:, None]).T @ H
+            info[:n, :n] += H_scaled.T @ H_scaled
             rhs = np.zeros(2 * n)
-            rhs[:n] = (H * w[:, None]).T @ innovation[keep]
+            rhs[:n] = H.T @ (w * used)
             new_delta = np.linalg.solve(info, rhs)
             step = float(np.max(np.abs(new_delta - delta)))
             delta = new_delta

@@ -10,6 +10,7 @@ after the rotations before it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -28,6 +29,18 @@ class ChainAxes:
     pivots: np.ndarray     # (n, 3)
     revolute: np.ndarray   # (n,) bool (False: root translation)
     affects: np.ndarray    # (P, n) bool
+
+    @cached_property
+    def rotation_axes(self) -> np.ndarray:
+        """(3, n): the axes of the rotation coordinates as columns, zero for translations (see projected_rows)."""
+        return (self.axes * self.revolute[:, None]).T
+
+    @cached_property
+    def offset_terms(self) -> np.ndarray:
+        """(3, n): -(a x c0) for a rotation about axis a through pivot c0, the axis a for a translation."""
+        a, c = self.axes, self.pivots
+        moment = a[:, [1, 2, 0]] * c[:, [2, 0, 1]] - a[:, [2, 0, 1]] * c[:, [1, 2, 0]]
+        return np.where(self.revolute[:, None], -moment, a).T
 
 
 def chain_membership(body: Body) -> np.ndarray:
@@ -65,7 +78,8 @@ def chain_axes(body: Body, q: np.ndarray, rotations: np.ndarray, origins: np.nda
         frame = rotations[joint.parent] @ joint.rest
         for k, letter in enumerate(joint.axes):
             axes[cols.start + k] = frame @ _UNIT[letter]
-            frame = frame @ _ELEMENTARY[letter](q[cols.start + k])
+            if k + 1 < len(joint.axes):              # the next axis turns with this rotation
+                frame = frame @ _ELEMENTARY[letter](q[cols.start + k])
     return ChainAxes(axes, pivots, revolute, chain_membership(body) if affects is None else affects)
 
 
@@ -96,7 +110,7 @@ def projected_rows(chain: ChainAxes, parts: np.ndarray, points: np.ndarray, g: n
     columns come from two (N, 3) @ (3, n) products; a translation column is g . a.  Equal to
     ``einsum('ni,nij->nj', g, point_jacobian(chain, parts, points))``.
     """
-    moment = np.cross(chain.axes, chain.pivots)                         # (n, 3): a x c0
-    rotation_cols = np.cross(points, g) @ chain.axes.T - g @ moment.T
-    rows = np.where(chain.revolute[None, :], rotation_cols, g @ chain.axes.T)
-    return rows * chain.affects[parts]
+    p_cross_g = points[:, [1, 2, 0]] * g[:, [2, 0, 1]] - points[:, [2, 0, 1]] * g[:, [1, 2, 0]]
+    rows = p_cross_g @ chain.rotation_axes + g @ chain.offset_terms
+    rows *= chain.affects[parts]
+    return rows

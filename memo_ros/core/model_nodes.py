@@ -53,6 +53,16 @@ class ModelNodes:
         return np.flatnonzero((self.rim == 0) & (np.abs(np.angle(np.exp(1j * self.theta))) < 1e-9))
 
     @cached_property
+    def side_index(self) -> np.ndarray:
+        """Ring starts twice: the side candidates' rings, first on the +arccos generator, then on the -arccos one."""
+        return np.concatenate([self.ring_starts, self.ring_starts])
+
+    @cached_property
+    def side_sign(self) -> np.ndarray:
+        """+1 / -1: the generator of each entry of :attr:`side_index`."""
+        return np.repeat([1.0, -1.0], len(self.ring_starts))
+
+    @cached_property
     def rim_index(self) -> np.ndarray:
         """Indices of the rim nodes."""
         return np.flatnonzero(self.rim != 0)
@@ -66,13 +76,6 @@ class ModelNodes:
     def rim_normals(self) -> np.ndarray:
         """Part-frame side normals of the rim nodes."""
         return self.side_normals()[self.rim_index]
-
-    @cached_property
-    def rim_caps(self) -> np.ndarray:
-        """Part-frame cap normals of the rim nodes (0, 0, -1 proximal; 0, 0, +1 distal)."""
-        cap = np.zeros((len(self.rim_index), 3))
-        cap[:, 2] = self.rim[self.rim_index]
-        return cap
 
 
 def model_nodes(body: Body, n_around: int = 24, ring_spacing: float = 0.03) -> ModelNodes:
@@ -98,7 +101,7 @@ def model_nodes(body: Body, n_around: int = 24, ring_spacing: float = 0.03) -> M
 
 def fan_alignment(side_n: np.ndarray, cap_n: np.ndarray, k: np.ndarray) -> np.ndarray:
     """max over the rim's normal fan (side to cap, a quarter turn) of n . k (M,): eq. 13 for rim nodes."""
-    s = np.einsum('mi,mi->m', side_n, k)
-    c = np.einsum('mi,mi->m', cap_n, k)
+    s = side_n[:, 0] * k[:, 0] + side_n[:, 1] * k[:, 1] + side_n[:, 2] * k[:, 2]
+    c = cap_n[:, 0] * k[:, 0] + cap_n[:, 1] * k[:, 1] + cap_n[:, 2] * k[:, 2]
     inside = (s > 0) & (c > 0)
     return np.where(inside, np.hypot(s, c), np.maximum(s, c))

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from memo_ros.core.body import Body
 from memo_ros.core.rotations import hat, matrix_to_rotvec, rotvec_to_matrix
@@ -43,10 +44,15 @@ def right_jacobian(r: np.ndarray) -> np.ndarray:
 
 
 def retract(q: np.ndarray, delta: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """q (+) delta: additive for scalar coordinates, R(r) exp(delta) for rotation groups; batched over rows."""
+    """q (+) delta: additive for scalar coordinates, R(r) exp(delta) for rotation groups; batched over rows.
+
+    The rotations are composed as unit quaternions (the same rotation as the matrix product, without
+    converting matrices back to rotation vectors, the slow part at the tracker's few groups)."""
     q, delta = np.asarray(q, float), np.asarray(delta, float)
     out = q + delta
-    out[..., groups] = matrix_to_rotvec(rotvec_to_matrix(q[..., groups]) @ rotvec_to_matrix(delta[..., groups]))
+    r, d = q[..., groups], delta[..., groups]
+    composed = Rotation.from_rotvec(r.reshape(-1, 3)) * Rotation.from_rotvec(d.reshape(-1, 3))
+    out[..., groups] = composed.as_rotvec().reshape(r.shape)
     return out
 
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from memo_ros.core.body import PART_NAMES, Body
 from memo_ros.core.camera import Camera
-from memo_ros.core.correspondence import Candidates, assign_forces, contour_rays, on_outline, outline_candidates
+from memo_ros.core.correspondence import (Candidates, Matches, assign_forces, contour_rays, rig_on_outline,
+                                          rig_outline_candidates)
 from memo_ros.core.ekf import ArticulatedEKF, Measurements, UpdateReport
 from memo_ros.core.kinematic_jacobian import chain_axes, chain_membership, normal_jacobian, projected_rows
 from memo_ros.core.model_nodes import model_nodes
@@ -186,26 +187,22 @@ class ArticulatedTracker:
                            reason='no contours: predicted only')
 
     # ------------------------------------------------------------ measurement model
-    def _candidates(self, cam: Camera, rays, rotations: np.ndarray, origins: np.ndarray, frame: dict) -> Candidates:
-        """The nodes that may be on an outline near the camera's samples, flagged usable where they are on the
-        predicted outline.  Which nodes, and which are usable, is decided once per frame (at the first
+    def _candidates(self, cams: list[Camera], rays: dict, rotations: np.ndarray, origins: np.ndarray,
+                    frame: dict) -> list[Candidates]:
+        """Per camera, the nodes that may be on an outline near its samples.  Which nodes, and which are on the
+        predicted outline (:class:`FirstOutline`, kept in ``frame``), is decided once per frame (at the first
         linearisation, like a per-frame visibility test) and kept through the iterations."""
-        if cam.name not in frame:
-            cand = outline_candidates(cam, self.nodes, rotations, origins)
-            near = np.all(np.isfinite(cand.uv), axis=1)
-            if len(rays.uv):      # nodes no sample can reach (twice the search radius) are never matched
-                near[near] = np.isfinite(rays.tree.query(cand.uv[near], k=1,
-                                                         distance_upper_bound=2 * self.settings.search_px)[0])
-            cand = cand.subset(near)
-            cand.usable = on_outline(cam, cand, rotations, origins, self.body.semi_axes, self.body.lengths,
-                                     self.settings.outline_probe_px)
-            order = np.argsort(cand.key)
-            frame[cam.name] = (cand.key[order], cand.usable[order])
-            return cand
-        keys, usable = frame[cam.name]
-        cand = outline_candidates(cam, self.nodes, rotations, origins, keys)
-        cand.usable = usable[np.searchsorted(keys, cand.key)]
-        return cand.subset(np.all(np.isfinite(cand.uv), axis=1))
+        if not frame:
+            out = []
+            for cam, cand in zip(cams, rig_outline_candidates(cams, self.nodes, rotations, origins)):
+                near = np.all(np.isfinite(cand.uv), axis=1)
+                if len(rays[cam.name].uv):  # nodes no sample can reach (twice the search radius) are never matched
+                    near[near] = rays[cam.name].within(cand.uv[near], 2 * self.settings.search_px)
+                out.append(cand.subset(near))
+            frame['outline'] = FirstOutline(cams, out, rotations, origins, self.body, self.settings.outline_probe_px)
+            return out
+        cands = rig_outline_candidates(cams, self.nodes, rotations, origins, frame['outline'].keys)
+        return [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in cands]
 
     def _limit_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Joint limits as pseudo-measurements (soft inequality constraints), active where q leaves its range."""
@@ -225,42 +222,63 @@ class ArticulatedTracker:
         s = self.settings
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
-        frame: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        frame: dict[str, FirstOutline] = {}      # the first linearisation's outline test (see _candidates)
         # noise per unit of contour length: denser samples each carry less independent information
         density = {c: np.sqrt(REFERENCE_SPACING_PX / sample_spacing(t)) for c, t in contours.items()}
 
         def measure(q: np.ndarray) -> Measurements:
             rotations, origins = self.body.forward_kinematics(q)
             chain = chain_axes(self.body, q, rotations, origins, self.affects)
-            rows_H, rows_r, rows_s = [], [], []
+            parts, points, g, rows_r, rows_s, normal_rows = [], [], [], [], [], []
             matched = unselected = 0
-            for cam_name in contours:
-                cam = self.cameras[cam_name]
-                cand = self._candidates(cam, rays[cam_name], rotations, origins, frame)
-                m = assign_forces(rays[cam_name], cand, self.nodes.epsilon, s.search_px, s.symmetric)
+            cams = [self.cameras[c] for c in contours]
+            cands = self._candidates(cams, rays, rotations, origins, frame)
+            outline = frame['outline']
+            first = [outline.index(k, cand) for k, cand in enumerate(cands)]
+            if s.symmetric:             # every usable node pulls: all of them are needed
+                for cand, usable in zip(cands, outline.usable(first)):
+                    cand.usable = usable
+            forces = [assign_forces(rays[cam.name], cand, self.nodes.epsilon, s.search_px, s.symmetric)
+                      for cam, cand in zip(cams, cands)]
+            if not s.symmetric:         # a sample whose nearest node is not on the predicted outline is dropped
+                usable = outline.usable([f[m.node] for f, m in zip(first, forces)])
+                forces = [Matches(m.sample[on], m.node[on], m.distance[on]) for m, on in zip(forces, usable)]
+            for cam, cand, m in zip(cams, cands, forces):
+                cam_name = cam.name
+                cam_rays = rays[cam_name]
                 use = masks[cam_name][cand.part[m.node]]
-                unselected += int((~use).sum())
+                unselected += int(len(use) - np.count_nonzero(use))
                 sample, node = m.sample[use], m.node[use]
-                matched += len(np.unique(sample))
+                tied = np.zeros(len(cam_rays.uv), bool)
+                tied[sample] = True
+                matched += int(np.count_nonzero(tied))
                 if not len(sample):
                     continue
-                parts = cand.part[node]
-                points = cand.points[node]
-                uv, J_proj = cam.project_with_jacobian(points)               # eq. 9: H R^-1
-                m_out = rays[cam_name].outward[sample]
-                g = np.einsum('ni,nij->nj', m_out, J_proj)
-                rows_H.append(projected_rows(chain, parts, points, g))       # eq. 9: m^T H R^-1 L
-                rows_r.append(np.einsum('ni,ni->n', m_out, rays[cam_name].uv[sample] - uv))   # eq. 14
+                parts.append(cand.part[node])
+                points.append(cand.points[node])
+                tied_nodes = np.zeros(len(cand), bool)    # eq. 9: H at each node tied to a sample, camera frame
+                tied_nodes[node] = True
+                J_cam = cam.projection_jacobian_camera(cam.world_to_camera(cand.points[tied_nodes]))
+                m_out = cam_rays.outward[sample]
+                J_cam = J_cam[(np.cumsum(tied_nodes) - 1)[node]]
+                g.append((m_out[:, 0, None] * J_cam[:, 0] + m_out[:, 1, None] * J_cam[:, 1])
+                         @ cam.R_world_cam.T)                                                  # eq. 9: m^T H R^-1
+                offset = cam_rays.uv[sample] - cand.uv[node]
+                rows_r.append(m_out[:, 0] * offset[:, 0] + m_out[:, 1] * offset[:, 1])          # eq. 14
                 side = ~cand.rim[node]
                 # the smoothing correction is itself uncertain: its size joins the noise
                 sigma = np.where(side, s.sigma_px, s.sigma_rim_px) * density[cam_name]
-                rows_s.append(np.hypot(sigma, rays[cam_name].bias[sample]))
+                rows_s.append(np.hypot(sigma, cam_rays.bias[sample]))
                 if s.sigma_normal > 0 and side.any():
                     normals = cand.normal[node][side]
-                    Jn = normal_jacobian(chain, parts[side], normals, rotations[parts[side]][:, :, 2])
-                    rows_H.append(Jn.reshape(-1, n))
-                    rows_r.append((rays[cam_name].k[sample][side] - normals).reshape(-1))      # eq. 15
-                    rows_s.append(np.full(3 * int(side.sum()), s.sigma_normal))
+                    Jn = normal_jacobian(chain, parts[-1][side], normals, rotations[parts[-1][side]][:, :, 2])
+                    normal_rows.append((Jn.reshape(-1, n), (cam_rays.k[sample][side] - normals).reshape(-1),  # eq. 15
+                                        np.full(3 * int(side.sum()), s.sigma_normal)))
+            # eq. 9: m^T H R^-1 L, every camera's image forces at once
+            rows_H = [projected_rows(chain, np.concatenate(parts), np.concatenate(points), np.concatenate(g))] \
+                if parts else []
+            for H, r, sigma in normal_rows:
+                rows_H.append(H), rows_r.append(r), rows_s.append(sigma)
             self._last_counts = (matched, unselected)
             limits = self._limit_rows(q)
             if limits is not None:
@@ -302,13 +320,46 @@ class ArticulatedTracker:
         self.ekf.initialize(best[1], None, sigma_q, sigma_v)
 
 
+class FirstOutline:
+    """The cameras' candidate nodes at a frame's first linearisation and which of them are on the predicted outline
+    there (:func:`rig_on_outline`).  The test is made on demand, once per node and frame, for all cameras at once:
+    only the nodes that samples are tied to need it, and the iterations keep the first linearisation's answer."""
+
+    def __init__(self, cameras: list[Camera], cands: list[Candidates], rotations: np.ndarray, origins: np.ndarray,
+                 body: Body, probe_px: float) -> None:
+        self.cameras, self.cands, self.rotations, self.origins = cameras, cands, rotations, origins
+        self.body, self.probe_px = body, probe_px
+        self._order = [np.argsort(c.key) for c in cands]
+        self.keys = [c.key[o] for c, o in zip(cands, self._order)]         # sorted, per camera
+        self._state = [np.full(len(c), -1, np.int8) for c in cands]        # -1 untested, 0 off the outline, 1 on it
+
+    def index(self, k: int, cand: Candidates) -> np.ndarray:
+        """(C,) where each node of camera k's ``cand`` (all among its :attr:`keys`) is among the first
+        linearisation's candidates."""
+        if cand is self.cands[k]:
+            return np.arange(len(cand))
+        return self._order[k][np.searchsorted(self.keys[k], cand.key)]
+
+    def usable(self, index: list[np.ndarray]) -> list[np.ndarray]:
+        """Per camera, True where its first-linearisation candidates ``index[k]`` are on the predicted outline."""
+        todo = [np.flatnonzero(np.bincount(i[state[i] < 0], minlength=len(state)))   # each node once, in order
+                for i, state in zip(index, self._state)]
+        if any(len(t) for t in todo):
+            flags = rig_on_outline(self.cameras, [c.subset(t) for c, t in zip(self.cands, todo)], self.rotations,
+                                   self.origins, self.body.semi_axes, self.body.lengths, self.probe_px)
+            for state, t, f in zip(self._state, todo, flags):
+                state[t] = f
+        return [state[i] == 1 for i, state in zip(index, self._state)]
+
+
 def sample_spacing(table: np.ndarray) -> float:
     """Median pixel distance between consecutive samples of the same contour (REFERENCE_SPACING_PX if unknown)."""
     if len(table) < 2:
         return REFERENCE_SPACING_PX
     same = table['contour'][1:] == table['contour'][:-1] if 'contour' in table.dtype.names else np.ones(len(table) - 1, bool)
     steps = np.hypot(np.diff(table['x']), np.diff(table['y']))[same]
-    return float(np.median(steps)) if len(steps) and np.median(steps) > 0 else REFERENCE_SPACING_PX
+    median = float(np.median(steps)) if len(steps) else 0.0
+    return median if median > 0 else REFERENCE_SPACING_PX
 
 
 def triangulate_centre(cameras: list[Camera], tables: list[np.ndarray]) -> np.ndarray | None:

@@ -2,11 +2,15 @@
 
 The contours are perfect silhouettes of the simulated studio-arm sequence,
 resampled so every camera has the wanted number of samples; each frame is one
-:meth:`ArticulatedTracker.step` (prediction, the occlusion rendering, force
-assignment and the iterated EKF update), timed on this process's single thread.
+:meth:`ArticulatedTracker.step` (prediction, the candidates' outline tests, force
+assignment and the iterated EKF update), timed in this process.  The nodes run
+numpy's BLAS on one thread (memo_ros/nodes/__init__.py); this command keeps the
+environment's setting, so ``OPENBLAS_NUM_THREADS=1`` measures what the tracker
+node does on one core, and the report says which it was.
 """
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -60,13 +64,14 @@ def run_tracker_benchmark(repeat: int = 1, settings: TrackerSettings | None = No
                       'points_actual': int(np.mean([sum(len(t) for t in f.values()) for f in frames]) / 3),
                       'frames': len(ms), 'median_ms': float(np.median(ms)), 'p90_ms': float(np.percentile(ms, 90)),
                       'iterations_mean': float(np.mean(iterations))})
-    return {'cameras': len(scenario.cameras), 'parts': len(body.lengths), 'cases': cases, 'target_ms': TARGET_MS}
+    return {'cameras': len(scenario.cameras), 'parts': len(body.lengths), 'cases': cases, 'target_ms': TARGET_MS,
+            'blas_threads': os.environ.get('OPENBLAS_NUM_THREADS', 'default')}
 
 
 def print_tracker_benchmark(report: dict) -> None:
     """One row per contour density."""
-    print(f"tracker update per frame, {report['parts']} parts x {report['cameras']} cameras, one thread; "
-          f"target {report['target_ms']:.0f} ms at 1,000 points per camera")
+    print(f"tracker update per frame, {report['parts']} parts x {report['cameras']} cameras, "
+          f"BLAS threads {report['blas_threads']}; target {report['target_ms']:.0f} ms at 1,000 points per camera")
     print(f"{'points/camera':>13} {'frames':>6} {'median ms':>10} {'p90 ms':>8} {'iterations':>10}")
     for c in report['cases']:
         print(f"{c['points_actual']:>13} {c['frames']:>6} {c['median_ms']:>10.2f} {c['p90_ms']:>8.2f} "
