@@ -2,8 +2,6 @@
 against the simulator's truth (issue 5's "Done when")."""
 from __future__ import annotations
 
-import signal
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,13 +11,11 @@ import pytest
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.metrics import FrameErrors
 from memo_ros.ros.assignment_messages import assignment_from_message
-from memo_ros.ros.dds import ros_session
 from memo_ros.tools.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
 from memo_ros.tools.simulate import simulate
 
 HEIGHT_MM = 1750.0
-RATE = 0.5        # half real time: three contour nodes, the selector and the tracker share two cores
 
 
 @dataclass
@@ -31,29 +27,12 @@ class Replay:
 
 
 def _replay(ros_env, tmp_path: Path, scenario: str, noise: float = 3.0, drop: dict | None = None) -> Replay:
-    """Simulate ``scenario``, launch the graph, play the bag into it, record its outputs, score them."""
+    """Simulate ``scenario``, replay it through the live graph with back-pressure (``memo-ros replay``: the
+    launched nodes over DDS, each frame played once the tracker finished the one before), score the outputs."""
     sim = simulate(scenario, tmp_path / 'bag', options=ImagingOptions(noise=noise), drop=drop)
-    launch = ros_env.start('launch', sim.studio, '--reliable-images')
     out = tmp_path / 'out'
-    recorder = ros_env.start('bag', 'record', '-o', out, *ESTIMATE_TOPICS, '/memo/camera_assignment',
-                             '--idle-timeout', 8, '--duration', 300)
-    inputs = [f'/{c}/{t}' for c in sim.cameras for t in ('image_raw', 'camera_info')]
-    with ros_session('graph_probe', ros_env.domain_id) as (node, _):
-        deadline = time.monotonic() + 60
-        wanted = [f'/{c}/contours' for c in sim.cameras] + ['/memo/camera_assignment', '/memo/joint_states']
-        while not (all(node.count_publishers(t) and node.count_subscribers(t) for t in wanted)
-                   and all(node.count_subscribers(t) for t in inputs)):
-            assert time.monotonic() < deadline, 'the graph did not come up'
-            assert launch.poll() is None, launch.communicate()[1]
-            time.sleep(0.3)
-    time.sleep(4.0)                 # seen by the probe; let the peers match each other too
-    played = ros_env.run('bag', 'play', sim.bag, '--topics', *inputs, '--wait-for-subscribers', 1,
-                         '--rate', RATE, timeout=240)
-    assert played.returncode == 0, played.stderr
-    recorder.communicate(timeout=120)
-    assert launch.poll() is None, 'a node of the graph died'
-    launch.send_signal(signal.SIGINT)
-    launch.communicate(timeout=30)
+    replayed = ros_env.run('replay', sim.bag, '--out', out, timeout=600)
+    assert replayed.returncode == 0, replayed.stderr + Path(f'{out}.log').read_text()[-3000:]
     truth = load_track(sim.bag, TRUTH_TOPICS)
     errors = match_and_measure(truth, load_track(out, ESTIMATE_TOPICS), 1_000_000)
     stamps = sorted(truth.origins)

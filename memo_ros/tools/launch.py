@@ -20,6 +20,8 @@ from memo_ros.core.studio import Studio, studio_path
 
 STOP_GRACE_S = 5.0
 REPLAY_IMAGE_QUEUE = 100     # image queue of the contour nodes when a bag is replayed into them
+REPLAY_JOIN_TIMEOUT = 1.0    # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
+                             # and with back-pressure the player waits anyway)
 
 
 @dataclass
@@ -34,7 +36,8 @@ class NodeProcess:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('studio', help='studio YAML (path, or a shipped name such as studio_orthogonal)')
     parser.add_argument('--reliable-images', action='store_true',
-                        help='subscribe images reliably (for bag replay) instead of best effort')
+                        help='for bag replay: subscribe images reliably with a 100-image queue instead of best '
+                             'effort, and let the tracker wait up to 1 s for a frame\'s contours')
     parser.add_argument('--log-level', default='info', choices=('debug', 'info', 'warn', 'error', 'fatal'))
 
 
@@ -61,8 +64,11 @@ def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
         nodes.append(NodeProcess('selector_node', [sys.executable, '-m', 'memo_ros.nodes.selector_node', '--ros-args',
                                                    '--params-file', str(path), '--log-level', log_level]))
-        nodes.append(NodeProcess('tracker_node', [sys.executable, '-m', 'memo_ros.nodes.tracker_node', '--ros-args',
-                                                  '--params-file', str(path), '--log-level', log_level]))
+        tracker = [sys.executable, '-m', 'memo_ros.nodes.tracker_node', '--ros-args', '--params-file', str(path),
+                   '--log-level', log_level]
+        if reliable_images:
+            tracker += ['-p', f'join_timeout:={REPLAY_JOIN_TIMEOUT}']
+        nodes.append(NodeProcess('tracker_node', tracker))
     if 'walker_node' in studio.node_parameters:      # Rohr's walking tracker: the studio file configures it
         nodes.append(NodeProcess('walker_node', [sys.executable, '-m', 'memo_ros.nodes.walker_node', '--ros-args',
                                                  '--params-file', str(path), '--log-level', log_level]))
