@@ -6,7 +6,7 @@ import re
 import signal
 import time
 
-from memo_ros.core.studio import load_studio, studio_path
+from memo_ros.core.studio import Studio, load_studio, studio_path
 from memo_ros.ros.dds import ros_session
 from memo_ros.tools.launch import graph_commands
 
@@ -73,3 +73,14 @@ def test_ros2_launch_file_compiles_and_names_the_shipped_executable():
     setup = (ROOT / 'setup.py').read_text()
     assert "executable='contour_node'" in source and "'contour_node = memo_ros.nodes.contour_node:main'" in setup
     assert "executable='selector_node'" in source and "'selector_node = memo_ros.nodes.selector_node:main'" in setup
+
+
+def test_roles_split_the_graph_between_camera_hosts_and_a_tracking_host():
+    studio = Studio.load(studio_path('studio_orthogonal'))
+    path = studio_path('studio_orthogonal')
+    everything = [n.label for n in graph_commands(studio, path)]
+    cameras = [n.label for n in graph_commands(studio, path, role='cameras')]
+    tracking = [n.label for n in graph_commands(studio, path, role='tracking')]
+    assert cameras == [f'{c}/contour_node' for c in studio.camera_names]
+    assert tracking == ['selector_node', 'tracker_node']
+    assert sorted(cameras + tracking) == sorted(everything)

@@ -19,6 +19,7 @@ from pathlib import Path
 from memo_ros.core.studio import Studio, studio_path
 
 STOP_GRACE_S = 5.0
+ROLES = ('all', 'cameras', 'tracking')
 REPLAY_IMAGE_QUEUE = 100     # image queue of the contour nodes when a bag is replayed into them
 REPLAY_JOIN_TIMEOUT = 1.0    # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
                              # and with back-pressure the player waits anyway)
@@ -38,29 +39,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--reliable-images', action='store_true',
                         help='for bag replay: subscribe images reliably with a 100-image queue instead of best '
                              'effort, and let the tracker wait up to 1 s for a frame\'s contours')
+    parser.add_argument('--role', default='all', choices=ROLES,
+                        help='what this host runs: all (default); cameras: the contour nodes (a camera host); '
+                             'tracking: the selector and tracker or the walker (the tracking host)')
     parser.add_argument('--log-level', default='info', choices=('debug', 'info', 'warn', 'error', 'fatal'))
 
 
 def run(args: argparse.Namespace) -> int:
     path = studio_path(args.studio).resolve()
     studio = Studio.load(path)
-    nodes = graph_commands(studio, path, args.reliable_images, args.log_level)
+    nodes = graph_commands(studio, path, args.reliable_images, args.log_level, args.role)
     return Launcher(nodes).run()
 
 
 def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
-                   log_level: str = 'info') -> list[NodeProcess]:
+                   log_level: str = 'info', role: str = 'all') -> list[NodeProcess]:
     """The processes of the graph: one contour_node per camera, in its camera's namespace, and the
     articulated tracker with its camera selector for a multi-camera studio (or one whose file configures
-    ``tracker_node``)."""
+    ``tracker_node``); ``role`` cameras keeps the contour nodes only, tracking the others."""
+    if role not in ROLES:
+        raise ValueError(f'unknown role {role!r}; one of {", ".join(ROLES)}')
     nodes = []
-    for cam in studio.camera_names:
+    for cam in studio.camera_names if role in ('all', 'cameras') else []:
         command = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{cam}',
                    '--params-file', str(path), '--log-level', log_level]
         if reliable_images:
             # replay: a burst of images re-sent to a late-matching reader must not overflow its queue
             command += ['-p', 'reliable_images:=true', '-p', f'image_queue_depth:={REPLAY_IMAGE_QUEUE}']
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
+    if role == 'cameras':
+        return nodes
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
         nodes.append(NodeProcess('selector_node', [sys.executable, '-m', 'memo_ros.nodes.selector_node', '--ros-args',
                                                    '--params-file', str(path), '--log-level', log_level]))

@@ -35,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', '-o', type=Path, required=True, help='output bag directory (must not exist)')
     parser.add_argument('--rate', type=float, default=0.0,
                         help='0 (default): paced by the graph (back-pressure); R > 0: recorded timing x R')
+    parser.add_argument('--no-launch', action='store_true',
+                        help='play into a graph that is already running (started with `memo-ros launch STUDIO '
+                             '--reliable-images`, here or on other hosts) instead of launching one')
     parser.add_argument('--frame-timeout', type=float, default=2.0,
                         help='with back-pressure, longest wait for a frame to be done, s (default 2)')
 
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     missing = [t for t in (f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES) if t not in _bag_topics(args.bag)]
     if missing:
         raise CliError(f'{args.bag} lacks the studio\'s camera topics {", ".join(missing)}')
-    report = replay(args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout)
+    report = replay(args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout, not args.no_launch)
     print(f"replayed   {report['frames']} frames of {args.bag} in {report['seconds']:.1f} s "
           f"({report['frames'] / max(report['seconds'], 1e-9):.1f} frames/s)")
     print(f"processed  {report['processed']} frames reported done by the graph, "
@@ -112,8 +115,9 @@ class Pacer:
 
 
 def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: float = 0.0,
-           frame_timeout: float = 2.0) -> dict:
-    """Launch the graph for ``studio_file``, play ``bag`` into it, record its outputs to ``out``; a report."""
+           frame_timeout: float = 2.0, launch_graph: bool = True) -> dict:
+    """Launch the graph for ``studio_file`` (unless it runs already), play ``bag`` into it, record its outputs
+    to ``out``; a report."""
     from std_msgs.msg import Header
 
     from memo_ros.ros.dds import ros_session
@@ -126,7 +130,8 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
     pacer = Pacer(frame_timeout)
     with open(log_path, 'w', encoding='utf-8') as log, ros_session('memo_replay') as (node, executor):
         launch = subprocess.Popen([sys.executable, '-m', 'memo_ros.tools.cli', 'launch', str(studio_file),
-                                   '--reliable-images'], stdout=log, stderr=subprocess.STDOUT)
+                                   '--reliable-images'], stdout=log, stderr=subprocess.STDOUT) \
+            if launch_graph else None
         stop = threading.Event()
         spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
         try:
@@ -150,12 +155,13 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
             _drain(recorder)
             seconds = time.monotonic() - start
             recorded = dict(recorder.counts)
-            graph_ok = launch.poll() is None
+            graph_ok = launch is None or launch.poll() is None
+            _stop_spinner(stop, spinner)          # before the player's and recorder's entities go
             player.close()
             recorder.close()
         finally:
-            stop.set()
-            if launch.poll() is None:
+            _stop_spinner(stop, spinner)          # no spin may run while the session shuts down
+            if launch is not None and launch.poll() is None:
                 launch.send_signal(2)
                 try:
                     launch.wait(15)
@@ -163,6 +169,14 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
                     launch.kill()
     return {'frames': pacer.frames, 'processed': pacer.processed, 'timeouts': pacer.timeouts, 'seconds': seconds,
             'recorded': recorded, 'log': str(log_path), 'graph_ok': graph_ok}
+
+
+def _stop_spinner(stop: threading.Event, spinner: threading.Thread) -> None:
+    """Stop the spin thread and wait for it: destroying entities or the context under a running spin ends
+    the process with a C++ terminate."""
+    stop.set()
+    if spinner.is_alive():
+        spinner.join(timeout=5.0)
 
 
 def _spin(executor, stop: threading.Event, recorder) -> None:
@@ -183,7 +197,7 @@ def _wait_for_graph(node, recorder, player, launch) -> None:
         ready = not player.unmatched_topics() and '/memo/joint_states' in recorder.subscriptions
         if ready:
             break
-        if launch.poll() is not None:
+        if launch is not None and launch.poll() is not None:
             raise CliError('the graph stopped before it was up (see the node log)')
         if time.monotonic() > deadline:
             raise CliError(f'the graph did not come up within {GRAPH_TIMEOUT_S:.0f} s; missing: '
