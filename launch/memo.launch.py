@@ -1,9 +1,11 @@
 """The memo_ros graph on a ROS 2 Jazzy install: one contour_node per camera of a studio.
 
-    ros2 launch memo_ros memo.launch.py studio:=/path/to/studio.yaml [reliable_images:=true]
+    ros2 launch memo_ros memo.launch.py studio:=/path/to/studio.yaml [reliable_images:=true] [role:=cameras]
 
 ``studio`` is a path or the name of a shipped studio (studio_orthogonal, street);
 every node gets it as its params file, as ``memo-ros launch`` does without ROS.
+``role`` splits the graph over hosts: cameras (the contour nodes), tracking (the
+selector and the tracker, or the walker), all (default).
 """
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
@@ -15,16 +17,21 @@ def _graph(context):
     from memo_ros.core.studio import load_studio, studio_path
     path = str(studio_path(LaunchConfiguration('studio').perform(context)).resolve())
     reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
+    role = LaunchConfiguration('role').perform(context)
+    if role not in ('all', 'cameras', 'tracking'):
+        raise ValueError(f'role must be all, cameras or tracking, not {role!r}')
     studio = load_studio(path)
     nodes = [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
                   parameters=[path, {'reliable_images': reliable, 'image_queue_depth': 100 if reliable else 5}],
                   output='screen')
-             for camera in studio.camera_names]
+             for camera in studio.camera_names if role != 'tracking']
+    if role == 'cameras':
+        return nodes
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
         nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',
                           parameters=[path], output='screen'))
         nodes.append(Node(package='memo_ros', executable='tracker_node', name='tracker_node',
-                          parameters=[path], output='screen'))
+                          parameters=[path, {'join_timeout': 1.0}] if reliable else [path], output='screen'))
     if 'walker_node' in studio.node_parameters:
         nodes.append(Node(package='memo_ros', executable='walker_node', name='walker_node',
                           parameters=[path], output='screen'))
@@ -36,6 +43,9 @@ def generate_launch_description():
         DeclareLaunchArgument('studio', default_value='studio_orthogonal',
                               description='studio YAML: a path, or a shipped studio name'),
         DeclareLaunchArgument('reliable_images', default_value='false',
-                              description='subscribe images reliably (bag replay) instead of best effort'),
+                              description='bag replay: subscribe images reliably instead of best effort, and let '
+                                          'the tracker wait 1 s for a frame\'s contours'),
+        DeclareLaunchArgument('role', default_value='all',
+                              description='what this host runs: all, cameras (contour nodes) or tracking'),
         OpaqueFunction(function=_graph),
     ])
