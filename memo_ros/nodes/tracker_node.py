@@ -77,6 +77,7 @@ PARAMS: tuple[Param, ...] = (
           'the cameras; 0 tracks only the newest, a large value every frame', 0.0, 3600.0),
 )
 LATE_STAMPS_KEPT = 512      # stamps of late frames remembered, so each is counted once
+EXPIRY_CHECK_S = 0.02       # how often frames whose join wait expired are looked for
 MISSES_BEFORE_NOT_WAITING = 3   # a camera missing from this many joined frames in a row is not waited for
 
 
@@ -149,7 +150,9 @@ class TrackerNode(Node):
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, 100)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.create_timer(0.005, self._tick)
+        # a frame is tracked as soon as the intake completes it (the guard condition), or when its wait expires
+        self.wake = self.create_guard_condition(self._tick)
+        self.create_timer(EXPIRY_CHECK_S, self._tick)
         self.health.set('tracking_state', self.tracker.status)
         self.get_logger().info(f'tracking with cameras {", ".join(self.camera_names)}; '
                                f'initial pose: {"studio" if initial is not None else "from the silhouettes"}')
@@ -243,6 +246,7 @@ class TrackerNode(Node):
             frame.contours[cam] = table
             self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
             self.missed[cam] = 0
+        self.wake.trigger()
 
     def _on_assignment(self, msg: DiagnosticArray) -> None:
         self.health.count('assignments_in')
@@ -260,6 +264,7 @@ class TrackerNode(Node):
             frame = self._frame_for(stamp, 'assignment')
             if frame is not None:
                 frame.assignment = assignment
+        self.wake.trigger()
 
     # ------------------------------------------------------------ joining (under the lock)
     def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
