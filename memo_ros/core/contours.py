@@ -24,6 +24,7 @@ import time
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
+from memo_ros.core.background_model import grey_of
 from memo_ros.core.edges import EDGE_DTYPE, edge_lines_in_boxes
 from memo_ros.core.segmentation import (BackgroundSegmenter, Region, Segmentation, Segmenter, SegmenterSettings,
                                         select_regions)
@@ -203,15 +204,20 @@ class ContourPipeline:
         method = self.segmenter.method
         return method.background if isinstance(method, BackgroundSegmenter) else None
 
-    def process(self, grey: np.ndarray) -> PipelineResult:
-        """Run one grey uint8 (H, W) frame through every stage."""
+    def set_roi(self, roi: np.ndarray | None) -> None:
+        """Where the tracked body is expected (bool (H, W)), for keep='tracked' and the sequence segmenter."""
+        self.segmenter.set_roi(roi)
+
+    def process(self, image: np.ndarray) -> PipelineResult:
+        """Run one frame through every stage: grey uint8 (H, W), or (H, W, C) for the sequence segmenter."""
         s = self.settings
-        grey = np.asarray(grey)
-        if grey.ndim != 2:
-            raise ValueError(f'the pipeline takes one grey (H, W) frame, got shape {grey.shape}')
+        image = np.asarray(image)
+        if image.ndim != 2 and not (self.segmenter.colour and image.ndim == 3):
+            raise ValueError(f'the pipeline takes one grey (H, W) frame, got shape {image.shape}')
+        grey = image if image.ndim == 2 else grey_of(image)
         clock = time.perf_counter
         t0 = clock()
-        change = self.segmenter.raw(grey)
+        change = self.segmenter.raw(image if self.segmenter.colour else grey)
         t1 = clock()
         timings = {'segment': t1 - t0}
         if change is None:

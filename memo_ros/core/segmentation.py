@@ -10,12 +10,19 @@ Two segmenters give a raw boolean mask of "person" pixels:
   background.  It sees a person who stands still, as long as every pixel shows
   the background in more than half of the learning frames (an empty studio at
   start, or a person walking through).
+- :class:`~memo_ros.core.background_model.SequenceSegmenter` ('sequence'): for
+  recordings that never show the scene empty: the background of the first N
+  frames with the person masked out (motion regions, then his own masks), in
+  colour, with a per-pixel noise model, and learnt further from every later
+  frame outside the person and the tracked body.
 
 Both feed the same :func:`cleanup` (Rohr §4.1: "detected image points having a
 small number of neighbors in a 3x3 window are deleted and nondetected points
 with a large number of neighbors are marked", repeated until stable, then the
 remaining holes filled) and :func:`select_regions` (enclosing rectangle and
-outline of each kept region, Rohr Figs. 10-11).
+outline of each kept region, Rohr Figs. 10-11).  ``keep='tracked'`` keeps the
+regions that overlap a prior (the tracked body's projection, else the previous
+frame's person grown), so people in the background are not taken for him.
 """
 from __future__ import annotations
 
@@ -26,7 +33,8 @@ import numpy as np
 
 from memo_ros.core.change_detection import NOISE_FACTOR, ChangeDetector, ChangeResult, Workspace, detect_changes
 
-SEGMENTERS = ('background', 'change')
+SEGMENTERS = ('background', 'change', 'sequence')
+KEEP_MODES = ('largest', 'all', 'tracked')
 _EMPTY_OUTLINE = np.zeros((0, 2), np.int32)
 
 
@@ -92,10 +100,13 @@ class Region:
     outline: np.ndarray                 # (N, 2) int32 pixel coordinates (x, y), cv2.findContours order
 
 
-def select_regions(mask: np.ndarray, min_area: int = 200, keep: str = 'largest') -> tuple[np.ndarray, list[Region]]:
-    """Keep the largest (or every) 8-connected region of at least ``min_area`` pixels: kept mask, regions."""
-    if keep not in ('largest', 'all'):
-        raise ValueError(f"keep must be 'largest' or 'all', got {keep!r}")
+def select_regions(mask: np.ndarray, min_area: int = 200, keep: str = 'largest',
+                   prior: np.ndarray | None = None) -> tuple[np.ndarray, list[Region]]:
+    """Keep the largest, every, or (``'tracked'``) every region overlapping ``prior`` among the 8-connected
+    regions of at least ``min_area`` pixels: kept mask, regions.  'tracked' without a prior, or when no
+    region overlaps it, keeps the largest."""
+    if keep not in KEEP_MODES:
+        raise ValueError(f"keep must be one of {', '.join(KEEP_MODES)}, got {keep!r}")
     m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
     kept = np.zeros(m.shape, bool)
     if not m.any():
@@ -107,7 +118,12 @@ def select_regions(mask: np.ndarray, min_area: int = 200, keep: str = 'largest')
     candidates = np.flatnonzero(areas >= min_area) + 1
     if candidates.size == 0:
         return kept, []
-    if keep == 'largest':
+    if keep == 'tracked' and prior is not None:
+        overlap = np.bincount(labels[prior[by:by + bh, bx:bx + bw]], minlength=n)
+        consistent = candidates[overlap[candidates] > 0]
+        candidates = consistent if consistent.size else candidates
+        keep = 'all' if consistent.size else 'largest'
+    if keep != 'all':
         candidates = candidates[[int(np.argmax(areas[candidates - 1]))]]
     else:
         candidates = candidates[np.argsort(-areas[candidates - 1], kind='stable')]
@@ -266,11 +282,13 @@ class SegmenterSettings:
     max_iterations: int = 10             # cleanup repetitions (upper bound)
     fill_holes: bool = True
     min_area: int = 200                  # smallest kept region, pixels
-    keep: str = 'largest'                # 'largest' or 'all'
+    keep: str = 'largest'                # 'largest', 'all' or 'tracked' (overlapping the prior)
     noise_factor: float = NOISE_FACTOR   # T is raised to this many sigmas of the measured noise (0: fixed T)
     refine: bool = True                  # per-pixel boundary refinement (undoes the 5x5 fit's spread)
     pixel_factor: float = 2.5            # boundary pixels need |g_k - g_j| > max(pixel_factor sigma, 2)
     compensate_gain: bool = True         # background: follow slow global lighting changes
+    learn_margin: int = 6                # sequence: pixels around the person not learnt from, px
+    track_margin: int = 15               # tracked: the previous frame's person grown by this much is the prior
 
 
 class Segmenter:
@@ -281,25 +299,52 @@ class Segmenter:
         settings = replace(settings or SegmenterSettings(), **overrides)
         if settings.segmenter not in SEGMENTERS:
             raise ValueError(f"unknown segmenter {settings.segmenter!r}; known: {', '.join(SEGMENTERS)}")
-        if settings.keep not in ('largest', 'all'):
-            raise ValueError(f"keep must be 'largest' or 'all', got {settings.keep!r}")
+        if settings.keep not in KEEP_MODES:
+            raise ValueError(f"keep must be one of {', '.join(KEEP_MODES)}, got {settings.keep!r}")
         self.settings = settings
         if settings.segmenter == 'change':
-            self.method: ChangeSegmenter | BackgroundSegmenter = ChangeSegmenter(
-                settings.threshold, settings.noise_factor)
+            self.method = ChangeSegmenter(settings.threshold, settings.noise_factor)
+        elif settings.segmenter == 'sequence':
+            from memo_ros.core.background_model import SequenceSegmenter
+            self.method = SequenceSegmenter(settings.threshold, settings.background_frames,
+                                            learn_margin=settings.learn_margin)
         else:
             self.method = BackgroundSegmenter(settings.threshold, settings.background_frames,
                                               settings.noise_factor, settings.compensate_gain)
         self.last_change: ChangeResult | None = None
+        self.roi: np.ndarray | None = None           # where the tracked body is expected (bool), if known
+        self.previous: np.ndarray | None = None      # the previous frame's kept person mask
+        self._image: np.ndarray | None = None
+
+    @property
+    def colour(self) -> bool:
+        """True when the segmenter compares colour frames (the others take grey)."""
+        return self.settings.segmenter == 'sequence'
 
     def reset(self) -> None:
-        """Forget the frame history (previous frame or learnt background)."""
+        """Forget the frame history (previous frame or learnt background) and the tracked region."""
         self.method.reset()
+        self.roi = self.previous = None
 
-    def raw(self, grey: np.ndarray) -> ChangeResult | None:
+    def set_roi(self, roi: np.ndarray | None) -> None:
+        """Where the tracked body is expected in the next frames (bool (H, W)); None: not known."""
+        self.roi = None if roi is None else np.asarray(roi, bool)
+
+    def raw(self, image: np.ndarray) -> ChangeResult | None:
         """The segmenter's eq. (1) result (raw mask, difference, noise), None while warming up."""
-        self.last_change = self.method.segment(grey)
+        self._image = image
+        self.last_change = self.method.segment(image)
         return self.last_change
+
+    def _prior(self, shape: tuple[int, int]) -> np.ndarray | None:
+        """The tracked region: the body's projection, else the previous frame's person grown."""
+        if self.roi is not None and self.roi.shape == shape:
+            return self.roi
+        if self.previous is None or self.previous.shape != shape or not self.previous.any():
+            return None
+        size = 2 * self.settings.track_margin + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        return cv2.dilate(self.previous.view(np.uint8), kernel).view(bool)
 
     def refine(self, change: ChangeResult) -> Segmentation:
         """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) result."""
@@ -313,14 +358,20 @@ class Segmenter:
             sharp = refine_boundary(raw[window], cleaned[window], change.difference[window], pixel_threshold)
             cleaned = np.zeros_like(cleaned)
             cleaned[window] = cleanup(sharp, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
-        mask, regions = select_regions(cleaned, s.min_area, s.keep)
+        prior = self._prior(cleaned.shape) if s.keep == 'tracked' else None
+        mask, regions = select_regions(cleaned, s.min_area, s.keep, prior)
+        self.previous = mask
+        learn = getattr(self.method, 'learn', None)
+        if learn is not None and self._image is not None:
+            roi = self.roi if self.roi is not None and self.roi.shape == mask.shape else None
+            learn(self._image, mask, roi)
         return Segmentation(raw.copy(), mask, regions, union_box(regions), False)
 
-    def process(self, grey: np.ndarray) -> Segmentation:
-        """Segment one grey frame (uint8 (H, W))."""
-        change = self.raw(grey)
+    def process(self, image: np.ndarray) -> Segmentation:
+        """Segment one frame: grey uint8 (H, W), or (H, W, C) for the sequence segmenter."""
+        change = self.raw(image)
         if change is None:
-            return Segmentation.empty(np.shape(grey)[:2], True)
+            return Segmentation.empty(np.shape(image)[:2], True)
         return self.refine(change)
 
 
