@@ -6,6 +6,14 @@ for every accepted frame (header copied from the image): ``contours``
 magnitude, chain), ``person_box`` (PolygonStamped: the enclosing rectangle's
 four corners in pixels, empty when nobody is seen) and, on request,
 ``debug/mask`` (mono8).  The science is memo_ros.core's ContourPipeline.
+
+With ``keep_regions: tracked`` or the ``sequence`` segmenter it also listens to
+the tracker's ``/memo/markers``: the tracked body projected into this camera
+(the studio's calibration of the camera named like the namespace) and grown by
+``roi_margin`` tells which regions are the person and where the background may
+be learnt.  ``background_bag`` lets the sequence segmenter learn the
+background from a recording of the scene (the one being replayed, or a clip
+taken before) at start-up instead of from the first live frames.
 """
 from __future__ import annotations
 
@@ -19,9 +27,13 @@ from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from visualization_msgs.msg import MarkerArray
 
+from memo_ros.core.background_model import background_from_frames, image_message_to_frame
 from memo_ros.core.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
+from memo_ros.core.rotations import quat_to_matrix
+from memo_ros.core.tracked_region import body_region, parts_from_cylinders
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.lost_frames import LostFrameCounter
 from memo_ros.ros.messages import stamp_to_ns
@@ -29,12 +41,25 @@ from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
+MARKERS_TOPIC = '/memo/markers'
+
 PARAMS = (
     Param('segmenter', 'background', 'person segmentation: a static background learnt over the first frames, '
-          "or Rohr's change detection against the previous frame", choices=('background', 'change')),
+          "Rohr's change detection against the previous frame, or a background learnt from a sequence that "
+          'never shows the scene empty (colour, person masked out, kept learning)',
+          choices=('background', 'change', 'sequence')),
     Param('threshold', 4.0, 'threshold T of Rohr eq. 1, grey levels, raised to the frame\'s noise floor '
           '(about 4 against a background, 12 against the previous frame)', 0.5, 255.0),
-    Param('background_frames', 10, 'frames the background segmenter learns from before it segments', 1, 10000),
+    Param('background_frames', 10, 'frames the background segmenter learns from before it segments (sequence, '
+          'with background_bag: at most this many, spread over the recording)', 1, 10000),
+    Param('background_bag', '', 'sequence segmenter: a rosbag2 with this camera\'s image_raw of the same scene '
+          '(the recording being replayed, or a clip taken before); the background is learnt from it at start-up '
+          'instead of from the first live frames', read_only=True),
+    Param('learn_margin', 6, 'sequence segmenter: pixels around the person and the tracked body not learnt from',
+          0, 200),
+    Param('roi_margin', 20.0, 'tracked region: the tracked body\'s projection grown by this many pixels', 0.0, 500.0),
+    Param('roi_max_age', 0.5, 'tracked region: /memo/markers older than the image by more than this (stamp time) '
+          'are not used, s', 0.0, 3600.0),
     Param('background_file', '', 'PNG where the learnt background is saved and, when it exists at start, loaded '
           'from instead of learning (a restarted node must not learn the person into it); empty: off',
           read_only=True),
@@ -43,8 +68,9 @@ PARAMS = (
     Param('cleanup_fill_above', 5, 'cleanup: an unflagged pixel with more flagged 3x3 neighbours is marked', 0, 8),
     Param('cleanup_max_iterations', 10, 'cleanup: repetitions until stable (upper bound)', 1, 100),
     Param('min_region_area', 200, 'smallest kept region, pixels', 1, 10_000_000),
-    Param('keep_regions', 'all', 'keep the largest region or all regions above the minimum area',
-          choices=('largest', 'all')),
+    Param('keep_regions', 'all', 'keep the largest region, all regions above the minimum area, or those '
+          'overlapping the tracked body (else the previous frame\'s person, else the largest)',
+          choices=('largest', 'all', 'tracked')),
     Param('contour_step', 2.0, 'arc-length step between contour samples, pixels', 0.5, 50.0),
     Param('smoothing', 2.0, 'smoothing of the closed contour: Gaussian low-pass sigma along the arc, pixels', 0.0, 50.0),
     Param('edge_low', 30.0, 'edge detector: low hysteresis threshold (gradient magnitude)', 0.0, 2000.0),
@@ -67,7 +93,7 @@ def pipeline_settings(params: dict) -> PipelineSettings:
         segmenter=p['segmenter'], threshold=p['threshold'], background_frames=p['background_frames'],
         delete_below=p['cleanup_delete_below'], fill_above=p['cleanup_fill_above'],
         max_iterations=p['cleanup_max_iterations'], min_area=p['min_region_area'],
-        keep=p['keep_regions'], contour_step=p['contour_step'], smoothing=p['smoothing'],
+        keep=p['keep_regions'], learn_margin=p['learn_margin'], contour_step=p['contour_step'], smoothing=p['smoothing'],
         edge_low=p['edge_low'], edge_high=p['edge_high'], min_edge_length=p['min_edge_length'])
 
 
@@ -79,9 +105,13 @@ class ContourNode(Node):
         self.params = declare(self, PARAMS, on_change=self._on_parameters_set)
         camera = self.get_namespace().strip('/') or 'camera'
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id=camera)
-        self.pipeline = ContourPipeline(pipeline_settings(self.params))
+        self.camera_name = camera
+        self.camera = self._studio_camera()
+        self.background = self._learn_background_from_bag()
+        self.pipeline = self._new_pipeline()
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
+        self.markers: tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None
         self.lost = LostFrameCounter()
         self._saved_background = None
         self._load_background()
@@ -98,12 +128,78 @@ class ContourNode(Node):
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
+        if self.camera is not None:
+            self.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, 10)
+
+    @property
+    def colour(self) -> bool:
+        """The sequence segmenter compares colour images; the others grey levels."""
+        return self.params['segmenter'] == 'sequence'
 
     def _on_parameters_set(self) -> None:
-        self.pipeline = ContourPipeline(pipeline_settings(self.params))
+        self.pipeline = self._new_pipeline()
         self._saved_background = None
         self._load_background()
         self.health.note('reconfigured', 'parameters changed: pipeline rebuilt')
+
+    # ------------------------------------------------------------ sequence background and tracked region
+    def _studio_camera(self):
+        """This camera's calibration from the studio parameters, when the tracked region is wanted."""
+        if self.params['keep_regions'] != 'tracked' and self.params['segmenter'] != 'sequence':
+            return None
+        try:
+            from memo_ros.ros.studio_params import studio_from_node
+            return studio_from_node(self).camera(self.camera_name)
+        except (KeyError, ValueError) as exc:
+            self.get_logger().warning(f'no studio calibration for {self.camera_name} ({exc}): the tracked body '
+                                      "is not used; regions follow the previous frame's person")
+            return None
+
+    def _learn_background_from_bag(self):
+        """The sequence segmenter's background learnt from background_bag (None without one)."""
+        path = self.params['background_bag']
+        if not path or self.params['segmenter'] != 'sequence':
+            return None
+        from memo_ros.tools.bagio import read_messages
+        topic = f'/{self.camera_name}/image_raw'
+        frames = [image_message_to_frame(m.message) for m in read_messages(path, [topic])]
+        if not frames:
+            raise ValueError(f'background_bag {path} has no {topic} images')
+        model = background_from_frames(frames, self.params['background_frames'], self.params['threshold'])
+        self.get_logger().info(f'background learnt from {min(len(frames), self.params["background_frames"])} of '
+                               f'{len(frames)} images of {path}: {int(model.unseen.sum())} pixels never seen, '
+                               f'noise {model.noise:.1f}')
+        return model
+
+    def _new_pipeline(self) -> ContourPipeline:
+        """The pipeline for the current parameters, starting from the bag-learnt background if any."""
+        pipeline = ContourPipeline(pipeline_settings(self.params))
+        if self.background is not None:
+            pipeline.segmenter.method.set_model(self.background.copy())
+        return pipeline
+
+    def _on_markers(self, msg: MarkerArray) -> None:
+        """Keep the newest tracked body (one cylinder per part) for the next images."""
+        cylinders = [m for m in msg.markers if m.type == m.CYLINDER]
+        if not cylinders:
+            return
+        centres = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in cylinders])
+        rotations = quat_to_matrix(np.array([[m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+                                              m.pose.orientation.w] for m in cylinders]))
+        scales = np.array([[m.scale.x, m.scale.y, m.scale.z] for m in cylinders])
+        origins, semi_axes, lengths = parts_from_cylinders(centres, rotations, scales)
+        stamp = stamp_to_ns(cylinders[0].header.stamp)
+        if self.markers is None or stamp >= self.markers[0]:
+            self.markers = (stamp, (rotations, origins, semi_axes, lengths))
+
+    def _tracked_region(self, stamp: int, shape: tuple[int, int]) -> np.ndarray | None:
+        """The tracked body's projection grown by roi_margin, from markers at most roi_max_age older."""
+        if self.camera is None or self.markers is None:
+            return None
+        marker_stamp, body = self.markers
+        if not 0 <= stamp - marker_stamp <= self.params['roi_max_age'] * 1e9:
+            return None
+        return body_region(self.camera, *body, shape, self.params['roi_margin'])
 
     # ------------------------------------------------------------ learnt background on disk
     def _load_background(self) -> None:
@@ -153,6 +249,9 @@ class ContourNode(Node):
             self.health.note('no_camera_info', 'image before any camera_info: processed without the size check')
         if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
             self.pipeline.reset()
+            if self.background is not None:
+                self.pipeline.segmenter.method.set_model(self.background.copy())
+            self.markers = None
             self.lost.reset()
             self._saved_background = None
             self._load_background()
@@ -164,7 +263,7 @@ class ContourNode(Node):
             self.health.drop('image_lost', 'camera_info came but its image did not (lost in transport or '
                                            'overwritten in a full queue)')
         try:
-            grey = image_message_to_grey(msg)
+            image = image_message_to_frame(msg) if self.colour else image_message_to_grey(msg)
         except ImageFormatError as exc:
             self.health.drop(exc.reason, f'bad image: {exc}')
             return
@@ -174,7 +273,8 @@ class ContourNode(Node):
                                               f'{info.width}x{info.height}')
             return
         self.last_stamp_ns = stamp
-        result = self.pipeline.process(grey)
+        self.pipeline.set_roi(self._tracked_region(stamp, image.shape[:2]))
+        result = self.pipeline.process(image)
         if self.pipeline.background is not None and self.pipeline.background is not self._saved_background:
             self._save_background()
         self._publish(msg, result)

@@ -26,6 +26,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from memo_ros.core.body_estimation import estimate_body, silhouette_from_contours
 from memo_ros.core.motion import ProcessNoise, coordinates_from_names
 from memo_ros.core.tracking import LOST, TRACKING, ArticulatedTracker, TrackerSettings
 from memo_ros.ros.assignment_messages import assignment_from_message
@@ -72,6 +73,11 @@ PARAMS: tuple[Param, ...] = (
     Param('use_initial_pose', True, "start from the studio's initial_pose when it has one (else from the "
           'silhouettes)'),
     Param('wait_for_assignment', True, "wait (up to join_timeout) for the selector's assignment of each frame"),
+    Param('body_source', 'studio', "the body's dimensions: the studio file's, or the studio body's proportions "
+          "scaled to the subject's height measured from the visual hull of the first frames' silhouettes (real "
+          'recordings)', choices=('studio', 'silhouettes'), read_only=True),
+    Param('body_frames', 1, 'body_source silhouettes: frames whose silhouettes measure the height (the ones before '
+          'the last are reported waiting)', 1, 1000, read_only=True),
     Param('max_lag', 1.0, 'frames are tracked in order, but one older than the newest complete frame by more than '
           'this (stamp time) is skipped (counted skipped_behind): the latency bound when the update is slower than '
           'the cameras; 0 tracks only the newest, a large value every frame', 0.0, 3600.0),
@@ -122,6 +128,7 @@ class TrackerNode(Node):
             initial = coordinates_from_names(self.body, list(self.studio.initial_pose),
                                              list(self.studio.initial_pose.values()))
         self.tracker = ArticulatedTracker(self.body, self.studio.cameras, tracker_settings(self.params), initial)
+        self.body_silhouettes: list | None = [] if self.params['body_source'] == 'silhouettes' else None
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
         # join state, shared by the intake thread and the tracking thread (under self.lock)
         self.lock = threading.Lock()
@@ -350,6 +357,8 @@ class TrackerNode(Node):
         if not frame.contours:
             self.health.drop('no_contours', 'a frame had an assignment but no camera contours within join_timeout')
             return 'no_contours'
+        if self.body_silhouettes is not None and not self._measure_body(frame.contours):
+            return 'waiting'
         selected = None
         if frame.assignment is not None:
             selected = {c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names}
@@ -375,6 +384,29 @@ class TrackerNode(Node):
         self.health.count('published')
         self.health.ok()
         return TRACKING
+
+    def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:
+        """body_source silhouettes: gather the frame's silhouettes; once body_frames are in, scale the body to
+        the measured height and start a tracker for it.  True when the body is measured (track this frame)."""
+        cameras = [c for c in self.studio.cameras if len(contours.get(c.name, ()))]
+        self.body_silhouettes.append((cameras, [silhouette_from_contours(contours[c.name], c.width, c.height)
+                                                for c in cameras]))
+        if len(self.body_silhouettes) < self.params['body_frames']:
+            self.health.drop('measuring_body', 'frame used to measure the body, not tracked')
+            return False
+        frames, self.body_silhouettes = self.body_silhouettes, []
+        try:
+            body, height = estimate_body(frames, self.studio.body)
+        except ValueError as exc:
+            self.health.drop('measuring_body', f'body not measured: {exc}; trying again')
+            return False
+        self.body = body
+        self.tracker = ArticulatedTracker(body, self.studio.cameras, tracker_settings(self.params))
+        self.body_silhouettes = None
+        self.health.set('body_height_m', f'{height:.3f}')
+        self.get_logger().info(f'body measured from {len(frames)} frame(s) of silhouettes: height {height:.3f} m '
+                               f'(the studio body, {self.studio.body.standing_height():.3f} m, scaled)')
+        return True
 
     def _publish(self, stamp: int, result) -> None:
         names = list(self.body.coordinate_names)
