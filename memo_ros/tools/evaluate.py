@@ -1,9 +1,16 @@
-"""Score estimated body poses against ground truth, matching frames by header stamp.
+"""Score estimated body poses against ground truth, matching frames by header stamp, or without it.
 
 Truth comes from ``/memo/truth/body_poses`` and ``/memo/truth/joint_states``;
 the estimate from ``/memo/body_poses`` and ``/memo/joint_states`` (or, for a
 bag holding only truth, its truth topics).  Prints per-part and summary errors,
 ``--json`` one object, ``--plots DIR`` PNG plots and overlays.
+
+A real recording has no truth: ``--images BAG`` (the recording) scores the
+track by the silhouette IoU, per camera and frame, between the model rendered
+into each camera and the person segmented there as the contour nodes did it,
+and counts the frames lost after the track started
+(:mod:`memo_ros.tools.silhouette_eval`); ``--plots`` then writes the model
+over every camera's image.
 """
 from __future__ import annotations
 
@@ -33,10 +40,12 @@ class PoseTrack:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--truth', required=True, type=Path, help='bag with /memo/truth/* (the simulator\'s)')
+    parser.add_argument('--truth', type=Path, help='bag with /memo/truth/* (the simulator\'s)')
     parser.add_argument('--estimate', required=True, type=Path, help='bag with /memo/body_poses and /memo/joint_states')
-    parser.add_argument('--studio', type=Path, help='studio YAML (body height, cameras for overlays); '
-                        'default: TRUTH.yaml beside the truth bag, else the shipped body')
+    parser.add_argument('--images', type=Path, help='the recording (camera images): score by silhouette IoU per '
+                        'camera and count frames lost, without ground truth (needs --truth or --images or both)')
+    parser.add_argument('--studio', type=Path, help='studio YAML (body height, cameras for overlays, contour_node '
+                        'settings); default: TRUTH.yaml beside the truth bag (or IMAGES.yaml), else the shipped body')
     parser.add_argument('--tolerance-ms', type=float, default=1.0, help='stamp matching tolerance')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of tables')
     parser.add_argument('--per-frame', type=Path, help='write per-frame errors as CSV to this file')
@@ -45,6 +54,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
+    if args.truth is None and args.images is None:
+        raise CliError('give --truth (simulated bags) or --images (a real recording), or both')
+    for name in ('truth', 'estimate', 'images'):
+        path = getattr(args, name)
+        if path is not None and not path.exists():
+            raise CliError(f'no bag at {path} (--{name})')
+    if args.truth is None:
+        return run_without_truth(args)
     studio = _find_studio(args.truth, args.studio)
     body = studio.body if studio else load_default_body()
     truth = load_track(args.truth, TRUTH_TOPICS)
@@ -67,11 +84,55 @@ def run(args: argparse.Namespace) -> int:
         if has_walker_measurements(topics):      # Rohr's walker: Figs. 26, 27 and 19
             summary['plots'] += [str(p) for p in write_walker_plots(args.plots, args.estimate, truth, estimate,
                                                                     body, studio, args.truth)]
+    silhouettes = _silhouettes(args, studio, estimate) if args.images is not None else None
+    if silhouettes is not None:
+        from memo_ros.tools.silhouette_eval import silhouette_summary
+        summary['silhouettes'] = silhouette_summary(silhouettes)
     if args.json:
         print(json.dumps(summary))
         return 0
     print_report(summary, per_part_table(errors, PART_NAMES, height))
+    if silhouettes is not None:
+        from memo_ros.tools.silhouette_eval import print_silhouette_report
+        print()
+        print_silhouette_report(silhouettes)
     return 0
+
+
+def run_without_truth(args: argparse.Namespace) -> int:
+    """Silhouette IoU per camera, frames lost, overlays: the score of a real recording."""
+    from memo_ros.tools.cli import CliError
+    from memo_ros.tools.silhouette_eval import print_silhouette_report, silhouette_summary, write_per_frame
+    studio = _find_studio(args.images, args.studio)
+    if studio is None:
+        raise CliError(f'no studio for {args.images}: give --studio (cameras are needed to render the model)')
+    estimate = load_track(args.estimate, ESTIMATE_TOPICS)
+    if not estimate.origins:
+        raise CliError(f'{args.estimate} has no {ESTIMATE_TOPICS[0]} messages: nothing was tracked')
+    report = _silhouettes(args, studio, estimate)
+    summary = silhouette_summary(report)
+    if args.per_frame:
+        write_per_frame(args.per_frame, report)
+    if args.plots:
+        from memo_ros.tools.plots import write_silhouette_plots
+        summary['plots'] = [str(p) for p in write_silhouette_plots(args.plots, report)]
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print_silhouette_report(report)
+    if summary.get('plots'):
+        print(f'{"plots":<28} {len(summary["plots"])} files in {Path(summary["plots"][0]).parent}')
+    return 0
+
+
+def _silhouettes(args: argparse.Namespace, studio, estimate):
+    """The silhouette report of ``estimate`` against the person segmented in ``args.images``."""
+    from memo_ros.tools.cli import CliError
+    from memo_ros.tools.silhouette_eval import evaluate_silhouettes, frame_outcomes, model_shape
+    if studio is None:
+        raise CliError('--images needs a studio (--studio) for the cameras')
+    return evaluate_silhouettes(args.images, estimate, frame_outcomes(args.estimate), studio,
+                                model_shape(args.estimate, studio.body))
 
 
 def load_track(path: Path, topics: tuple[str, str]) -> PoseTrack:
@@ -128,7 +189,7 @@ def print_report(summary: dict, parts: list[dict]) -> None:
               f'{row["translation_pct_height_max"]:>13.2f} {row["axis_deg_mean"]:>13.2f} {row["axis_deg_max"]:>12.2f}')
     print()
     for key, value in summary.items():
-        if key == 'plots':
+        if key in ('plots', 'silhouettes'):
             continue
         text = 'n/a' if value is None else (f'{value:.3f}' if isinstance(value, float) else str(value))
         print(f'{key:<28} {text}')
@@ -150,9 +211,9 @@ def _write_per_frame(path: Path, errors: FrameErrors) -> None:
     path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
 
 
-def _find_studio(truth: Path, given: Path | None):
+def _find_studio(bag: Path, given: Path | None):
     from memo_ros.core.studio import Studio
     if given is not None:
         return Studio.load(given)
-    beside = truth.with_name(truth.name + '.yaml')
+    beside = bag.with_name(bag.name + '.yaml')
     return Studio.load(beside) if beside.is_file() else None

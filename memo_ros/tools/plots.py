@@ -220,3 +220,82 @@ def _overlays(directory: Path, estimate, errors: FrameErrors, body, studio, trut
         cv2.imwrite(str(path), image)
         paths.append(path)
     return paths
+
+
+# ------------------------------------------------------- without ground truth
+PERSON_TINT_BGR = (0, 0, 200)       # the segmented person, blended into the image
+IOU_COLOURS = ('tab:blue', 'tab:orange', 'tab:green', 'tab:red', 'tab:purple', 'tab:brown')
+
+
+def silhouette_overlay(image: np.ndarray, person: np.ndarray, label: np.ndarray, text: str = '') -> np.ndarray:
+    """BGR picture: the segmented person tinted red, each model part's outline in its colour, the model's
+    silhouette in yellow (the two masks the silhouette IoU compares)."""
+    import cv2
+    image = np.ascontiguousarray(image)
+    bgr = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image[..., :3].copy()
+    tinted = bgr.astype(np.float32)
+    tinted[person] = 0.55 * tinted[person] + 0.45 * np.array(PERSON_TINT_BGR, np.float32)
+    picture = outline_image(np.zeros(bgr.shape[:2], np.uint8), label)
+    drawn = picture.any(axis=2)
+    out = tinted.astype(np.uint8)
+    out[drawn] = picture[drawn]
+    if text:
+        cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 2, cv2.LINE_AA)
+        cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    return out
+
+
+def write_silhouette_plots(directory: str | Path, report) -> list[Path]:
+    """Per kept frame: every camera's overlay and a side-by-side montage; and the IoU curves (iou.png)."""
+    import cv2
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = [_iou_curves(directory / 'iou.png', report)]
+    frames = sorted({index for _, index in report.kept})
+    for index in frames:
+        tiles = []
+        for name in report.cameras:
+            if (name, index) not in report.kept:
+                continue
+            image, person, label = report.kept[(name, index)]
+            column = report.cameras.index(name)
+            iou = report.iou[index, column]
+            tile = silhouette_overlay(image, person, label, f'{name} frame {index} IoU {iou:.2f}')
+            path = directory / f'overlay_{name}_{index:04d}.png'
+            cv2.imwrite(str(path), tile)
+            paths.append(path)
+            tiles.append(tile)
+        if tiles:
+            height = max(t.shape[0] for t in tiles)
+            montage = np.hstack([np.pad(t, ((0, height - t.shape[0]), (0, 2), (0, 0))) for t in tiles])
+            path = directory / f'overlay_{index:04d}.png'
+            cv2.imwrite(str(path), montage)
+            paths.append(path)
+    return paths
+
+
+def _iou_curves(path: Path, report) -> Path:
+    """Silhouette IoU of every camera over the frame number, with the frames not tracked marked."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7.0, 2.8))
+    frames = np.arange(len(report.stamps))
+    for c, name in enumerate(report.cameras):
+        mean = report.summary[name]['mean']
+        ax.plot(frames, report.iou[:, c], '.-', lw=1.0, ms=2.5, color=IOU_COLOURS[c % len(IOU_COLOURS)],
+                label=f'{name} (mean {mean:.2f})')
+    untracked = [k for k, o in enumerate(report.outcomes) if o != 'tracking']
+    if untracked:
+        ax.plot(untracked, np.zeros(len(untracked)), 'x', color='grey', ms=3, label='not tracked')
+    ax.axhline(0.7, color='k', lw=0.6, ls='--')
+    ax.set_ylim(0.0, 1.0)
+    ax.set_xlabel('frame', fontsize=9)
+    ax.set_ylabel('silhouette IoU', fontsize=9)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6, loc='lower right', ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
