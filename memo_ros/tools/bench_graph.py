@@ -278,7 +278,9 @@ def wait_for_nodes(launch: subprocess.Popen, expected: int, log: Path) -> dict[i
     from memo_ros.tools.cli import CliError
     deadline = time.monotonic() + GRAPH_TIMEOUT
     while True:
-        nodes = {pid: node_label(command) for pid, command in children(launch.pid).items()}
+        # a child just forked still shows the launcher's command line until it execs its node: wait for that
+        nodes = {pid: node_label(command) for pid, command in children(launch.pid).items()
+                 if any('memo_ros.nodes.' in word for word in command)}
         if len(nodes) >= expected:
             return nodes
         if launch.poll() is not None:
