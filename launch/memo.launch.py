@@ -31,7 +31,7 @@ def _graph(context):
         nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',
                           parameters=[path], output='screen'))
         nodes.append(Node(package='memo_ros', executable='tracker_node', name='tracker_node',
-                          parameters=[path, {'join_timeout': 1.0}] if reliable else [path], output='screen'))
+                          parameters=[path, {'join_timeout': 3.0}] if reliable else [path], output='screen'))
     if 'walker_node' in studio.node_parameters:
         nodes.append(Node(package='memo_ros', executable='walker_node', name='walker_node',
                           parameters=[path], output='screen'))
@@ -44,7 +44,7 @@ def generate_launch_description():
                               description='studio YAML: a path, or a shipped studio name'),
         DeclareLaunchArgument('reliable_images', default_value='false',
                               description='bag replay: subscribe images reliably instead of best effort, and let '
-                                          'the tracker wait 1 s for a frame\'s contours'),
+                                          'the tracker wait 3 s for a frame\'s contours'),
         DeclareLaunchArgument('role', default_value='all',
                               description='what this host runs: all, cameras (contour nodes) or tracking'),
         OpaqueFunction(function=_graph),

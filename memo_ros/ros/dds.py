@@ -112,3 +112,43 @@ def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threa
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+
+
+PROFILES_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+# One process playing every camera, where each camera would have its own driver: Fast DDS's default 512 KiB
+# shared-memory segment per participant holds one 640x480 image, so the other cameras' images of a frame are
+# lost in the player; reliable ones are repaired about a second later, which stalls a replay.
+LARGE_SEGMENT_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <transport_descriptors>
+    <transport_descriptor><transport_id>player_shm</transport_id><type>SHM</type>
+      <segment_size>{segment_size}</segment_size></transport_descriptor>
+    <transport_descriptor><transport_id>player_udp</transport_id><type>UDPv4</type></transport_descriptor>
+  </transport_descriptors>
+  <participant profile_name="memo_player" is_default_profile="true">
+    <rtps><userTransports><transport_id>player_shm</transport_id><transport_id>player_udp</transport_id>
+      </userTransports><useBuiltinTransports>false</useBuiltinTransports></rtps>
+  </participant>
+</profiles>
+"""
+
+
+@contextmanager
+def player_segment(segment_bytes: int, directory) -> Iterator[bool]:
+    """For the participants this process creates inside: a shared-memory segment of ``segment_bytes``.
+
+    Only when the user configured no Fast DDS transports (a profiles file, FASTDDS_BUILTIN_TRANSPORTS) and no
+    static peers; yields whether it applied.  The nodes, other processes, keep their defaults."""
+    import os
+    from pathlib import Path
+    configured = any(os.environ.get(v) for v in (PROFILES_VARIABLE, 'FASTDDS_BUILTIN_TRANSPORTS', 'ROS_STATIC_PEERS'))
+    if configured:
+        yield False
+        return
+    profile = Path(directory) / 'memo_player_profile.xml'
+    profile.write_text(LARGE_SEGMENT_PROFILE.format(segment_size=int(segment_bytes)))
+    os.environ[PROFILES_VARIABLE] = str(profile)
+    try:
+        yield True
+    finally:
+        os.environ.pop(PROFILES_VARIABLE, None)

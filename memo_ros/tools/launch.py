@@ -21,7 +21,7 @@ from memo_ros.core.studio import Studio, studio_path
 STOP_GRACE_S = 5.0
 ROLES = ('all', 'cameras', 'tracking')
 REPLAY_IMAGE_QUEUE = 100     # image queue of the contour nodes when a bag is replayed into them
-REPLAY_JOIN_TIMEOUT = 1.0    # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
+REPLAY_JOIN_TIMEOUT = 3.0    # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
                              # and with back-pressure the player waits anyway)
 
 
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('studio', help='studio YAML (path, or a shipped name such as studio_orthogonal)')
     parser.add_argument('--reliable-images', action='store_true',
                         help='for bag replay: subscribe images reliably with a 100-image queue instead of best '
-                             'effort, and let the tracker wait up to 1 s for a frame\'s contours')
+                             'effort, and let the tracker wait up to 3 s for a frame\'s contours')
     parser.add_argument('--role', default='all', choices=ROLES,
                         help='what this host runs: all (default); cameras: the contour nodes (a camera host); '
                              'tracking: the selector and tracker or the walker (the tracking host)')
