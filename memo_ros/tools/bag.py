@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -28,8 +29,8 @@ from rosbags.interfaces import Connection, Qos, QosDurability, QosHistory, QosLi
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from memo_ros.ros.dds import (DURABILITY, RELIABILITY, absolute_topic, adapted_qos, qos_profile, ros_session,
-                              stop_on_signals, topic_types)
+from memo_ros.ros.dds import (DURABILITY, RELIABILITY, absolute_topic, adapted_qos, player_segment, qos_profile,
+                              ros_session, stop_on_signals, topic_types)
 from memo_ros.ros.messages import MessageTypeError, import_message_type
 from memo_ros.tools.bagio import BagError, open_bag
 
@@ -38,6 +39,7 @@ STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 STATUS_PERIOD = 0.2          # seconds between two updates of the terminal status line
 DISCOVERY_PERIOD = 0.1       # seconds between two looks at the graph while topics are missing
 ALL_TOPICS_PERIOD = 0.5      # seconds between two looks at the graph with --all
+PLAYER_SEGMENT_BYTES = 16 << 20   # `bag play`'s shared-memory segment: a few frames of several cameras' images
 INFINITE_NS = 2**63 - 1
 
 
@@ -669,7 +671,9 @@ def run_play(args: argparse.Namespace) -> int:
         topics=args.topics, remap=parse_remaps(args.remap), reliability=args.qos, durability=args.durability,
         qos_depth=args.qos_depth, wait_for_subscribers=args.wait_for_subscribers, wait_timeout=args.wait_timeout)
     status = StatusLine(_progress_enabled(args))
-    with ros_session('memo_ros_bag_player') as (node, _executor), stop_on_signals() as stop:
+    # one process publishing every camera's images needs more than Fast DDS's 512 KiB shared-memory segment
+    with tempfile.TemporaryDirectory(prefix='memo_bag_play_') as tmp, player_segment(PLAYER_SEGMENT_BYTES, tmp), \
+            ros_session('memo_ros_bag_player') as (node, _executor), stop_on_signals() as stop:
         with BagPlayer(node, args.bag, options) as player:
             duration = max(player.end_ns - player.start_ns, 0) / 1e9
 
