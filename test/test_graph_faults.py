@@ -25,7 +25,7 @@ from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, m
 from memo_ros.tools.launch import REPLAY_JOIN_TIMEOUT
 from memo_ros.tools.simulate import simulate
 
-FRAMES = 360                # 12 s of studio-arm at 30 Hz (10 of them the empty studio)
+FRAMES = 450                # 15 s of studio-arm at 30 Hz (10 of them the empty studio)
 RATE = 0.5                  # bag play into a running graph at 15 frames/s (the corrupt-bag test)
 DETECTION_FRAMES = 75       # a dead contour_node is excluded within 75 frames (contours_timeout: 2 s wall)
 RESTART_FRAMES = 120        # a restarted process is back within 120 frames (its start and discovery: 4 - 7 s)
@@ -141,9 +141,9 @@ def _alive(out: Path, camera: str) -> dict[int, bool]:
 
 
 def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_path):
-    """cam_top's contour_node dies at frame 60 and is started again at 160; the tracker dies at 280 and is
+    """cam_top's contour_node dies at frame 60 and is started again at 180; the tracker dies at 320 and is
     started again at once."""
-    kill_at, restart_at, tracker_at = 60, 160, 280
+    kill_at, restart_at, tracker_at = 60, 180, 320
     out, graph = _play_with_faults(ros_env, arm, tmp_path, {kill_at: [lambda g: g.kill('cam_top')],
                                                      restart_at: [lambda g: g.start('cam_top')],
                                                      tracker_at: [lambda g: g.kill('tracker'),
