@@ -123,7 +123,7 @@ LARGE_SEGMENT_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
   <transport_descriptors>
     <transport_descriptor><transport_id>player_shm</transport_id><type>SHM</type>
       <segment_size>{segment_size}</segment_size></transport_descriptor>
-    <transport_descriptor><transport_id>player_udp</transport_id><type>UDPv4</type></transport_descriptor>
+    <transport_descriptor><transport_id>player_udp</transport_id><type>UDPv4</type>{udp_whitelist}</transport_descriptor>
   </transport_descriptors>
   <participant profile_name="memo_player" is_default_profile="true">
     <rtps><userTransports><transport_id>player_shm</transport_id><transport_id>player_udp</transport_id>
@@ -133,9 +133,18 @@ LARGE_SEGMENT_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
+PLAYER_SEGMENT_FRAMES = 4       # frames of every camera (up to 4 bytes a pixel) a player's segment holds
+
+
+def player_segment_bytes(cameras) -> int:
+    """The shared-memory segment for one process playing ``cameras``: a few frames of all, at least 8 MiB."""
+    return max(PLAYER_SEGMENT_FRAMES * sum(4 * c.width * c.height for c in cameras), 8 << 20)
+
+
 @contextmanager
-def player_segment(segment_bytes: int, directory) -> Iterator[bool]:
-    """For the participants this process creates inside: a shared-memory segment of ``segment_bytes``.
+def player_segment(segment_bytes: int, directory, localhost_only: bool = False) -> Iterator[bool]:
+    """For the participants this process creates inside: a shared-memory segment of ``segment_bytes`` (and,
+    ``localhost_only``, UDP on the loopback interface alone, for a graph on this host).
 
     Only when the user configured no Fast DDS transports (a profiles file, FASTDDS_BUILTIN_TRANSPORTS) and no
     static peers; yields whether it applied.  The nodes, other processes, keep their defaults."""
@@ -146,7 +155,8 @@ def player_segment(segment_bytes: int, directory) -> Iterator[bool]:
         yield False
         return
     profile = Path(directory) / 'memo_player_profile.xml'
-    profile.write_text(LARGE_SEGMENT_PROFILE.format(segment_size=int(segment_bytes)))
+    whitelist = '<interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>' if localhost_only else ''
+    profile.write_text(LARGE_SEGMENT_PROFILE.format(segment_size=int(segment_bytes), udp_whitelist=whitelist))
     os.environ[PROFILES_VARIABLE] = str(profile)
     try:
         yield True

@@ -7,7 +7,7 @@ per camera, selector_node, tracker_node, each its own process), with
 best-effort images as from live cameras.  This process plays the bag's
 ``/<cam>/image_raw`` (best effort) and ``/<cam>/camera_info`` (reliable) with
 :class:`BagPlayer` at the rate (with a Fast DDS shared-memory segment large
-enough for all cameras, see PLAYER_PROFILE), and restamps every frame to the
+enough for all cameras, see memo_ros.ros.dds.player_segment), and restamps every frame to the
 wall clock at the moment its first message goes out (all messages of a frame
 share the stamp).  Every output carries its frame's stamp, so a stage's cumulative
 latency is the output's publication time (its DDS source timestamp) minus the
@@ -56,26 +56,6 @@ TARGETS = {30.0: 'zero drops, end-to-end p99 < 50 ms, sustained', 60.0: 'drops <
 ASSIGNMENT_TOPIC = '/memo/camera_assignment'
 JOINT_STATES_TOPIC = '/memo/joint_states'
 PROCESSED_TOPIC = '/memo/processed'
-PROFILES_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
-# This process plays all the cameras, where each camera would have its own driver process: Fast DDS's default
-# 512 KiB shared-memory segment per participant holds one 640x480 image, so best-effort images of the second
-# and third camera of a frame were lost here, in the player (about 40 % of them).  The player gets a segment
-# as large as a few frames of all cameras; the nodes keep the defaults.
-PLAYER_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <transport_descriptors>
-    <transport_descriptor><transport_id>player_shm</transport_id><type>SHM</type>
-      <segment_size>{segment_size}</segment_size></transport_descriptor>
-    <transport_descriptor><transport_id>player_udp</transport_id><type>UDPv4</type>
-      <interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList></transport_descriptor>
-  </transport_descriptors>
-  <participant profile_name="memo_graph_benchmark_player" is_default_profile="true">
-    <rtps><userTransports><transport_id>player_shm</transport_id><transport_id>player_udp</transport_id>
-      </userTransports><useBuiltinTransports>false</useBuiltinTransports></rtps>
-  </participant>
-</profiles>
-"""
-PLAYER_SEGMENT_FRAMES = 4    # frames of all cameras the player's shared-memory segment holds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -638,6 +618,7 @@ def run_graph_benchmark(rates=RATES, frames: int = FRAMES, warmup: int = WARMUP,
     """Simulate the bag once (unless given), then run a fresh graph at every rate; the report."""
     from memo_ros.core.imaging import ImagingOptions
     from memo_ros.core.studio import Studio
+    from memo_ros.ros.dds import player_segment, player_segment_bytes
     from memo_ros.tools.bag import bag_summary
     from memo_ros.tools.launch import graph_commands
     from memo_ros.tools.simulate import simulate
@@ -645,7 +626,6 @@ def run_graph_benchmark(rates=RATES, frames: int = FRAMES, warmup: int = WARMUP,
         domain_id = int(os.environ.get('ROS_DOMAIN_ID') or DEFAULT_DOMAIN_ID)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'          # this process's participant too
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED='1')
-    own_profile = PROFILES_VARIABLE not in os.environ
     with tempfile.TemporaryDirectory(prefix='memo_ros_bench_graph_') as tmp:
         simulated = bag is None
         if simulated:
@@ -654,23 +634,16 @@ def run_graph_benchmark(rates=RATES, frames: int = FRAMES, warmup: int = WARMUP,
         studio_file = bag.with_name(bag.name + '.yaml')
         studio = Studio.load(studio_file)
         cameras = studio.camera_names
-        # up to 4 bytes a pixel, at least 8 MiB
-        segment = max(PLAYER_SEGMENT_FRAMES * sum(4 * c.width * c.height for c in studio.cameras), 8 << 20)
-        if own_profile:                       # only for this process: the nodes' environment stays as it was
-            profile = Path(tmp) / 'player_profile.xml'
-            profile.write_text(PLAYER_PROFILE.format(segment_size=segment))
-            os.environ[PROFILES_VARIABLE] = str(profile)
+        segment = player_segment_bytes(studio.cameras)
         summary = bag_summary(bag)
         images = {t.topic: t.count for t in summary.topics}.get(f'/{cameras[0]}/image_raw', 0)
         seconds = summary.duration_ns * 1e-9
         bag_hz = (images - 1) / seconds if images > 1 and seconds > 0 else studio.frame_rate
         expected = len(graph_commands(studio, studio_file))
-        try:
+        # only for this process's participants: the nodes got ``env`` from before
+        with player_segment(segment, tmp, localhost_only=True) as own_profile:
             rows = [run_rate(bag, studio_file, cameras, expected, rate, bag_hz, warmup, domain_id, env,
                              Path(tmp) / f'graph_{k}.log', loops) for k, rate in enumerate(rates)]
-        finally:
-            if own_profile:
-                os.environ.pop(PROFILES_VARIABLE, None)
         first = cameras[0]
         size = next((f'{c.width}x{c.height}' for c in studio.cameras if c.name == first), '?')
     return {'cpus': len(os.sched_getaffinity(0)), 'bag': 'simulated' if simulated else str(bag),

@@ -27,7 +27,6 @@ OUTPUT_TOPICS = ('/memo/joint_states', '/memo/body_poses', '/memo/markers', '/me
                  '/memo/camera_assignment', '/memo/walker/measurement', '/memo/processed', '/diagnostics')
 INPUT_SUFFIXES = ('/image_raw', '/camera_info')
 GRAPH_TIMEOUT_S = 60.0
-PLAYER_SEGMENT_FRAMES = 4      # frames of every camera (up to 4 bytes a pixel) the player's shm segment holds
 DRAIN_IDLE_S = 2.0
 
 
@@ -122,7 +121,7 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
     to ``out``; a report."""
     from std_msgs.msg import Header
 
-    from memo_ros.ros.dds import player_segment, ros_session
+    from memo_ros.ros.dds import player_segment, player_segment_bytes, ros_session
     from memo_ros.tools.bag import BagPlayer, BagRecorder, PlayOptions, RecordOptions
     from memo_ros.tools.progress import Progress
 
@@ -130,8 +129,7 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
     out.parent.mkdir(parents=True, exist_ok=True)
     inputs = [f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES]
     pacer = Pacer(frame_timeout)
-    segment = max(PLAYER_SEGMENT_FRAMES * sum(4 * c.width * c.height for c in Studio.load(studio_file).cameras),
-                  8 << 20)
+    segment = player_segment_bytes(Studio.load(studio_file).cameras)
     with tempfile.TemporaryDirectory(prefix='memo_replay_') as tmp, player_segment(segment, tmp), \
             open(log_path, 'w', encoding='utf-8') as log, ros_session('memo_replay') as (node, executor):
         launch = subprocess.Popen([sys.executable, '-m', 'memo_ros.tools.cli', 'launch', str(studio_file),
