@@ -11,7 +11,8 @@ from memo_ros.core.change_detection import (ChangeDetector, Workspace, change_ma
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
 from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, make_scenario
-from memo_ros.core.segmentation import (BackgroundSegmenter, Segmenter, cleanup, select_regions)
+from memo_ros.core.segmentation import (BackgroundSegmenter, Segmenter, carve_background_channels, cleanup,
+                                        select_regions)
 from memo_ros.tools.bagio import grey_images
 from memo_ros.tools.simulate import simulate
 
@@ -207,6 +208,50 @@ def test_change_segmenter_on_the_studio_arm_sees_only_the_arm(studio_arm):
         scores = [iou(segmenter.process(image).mask, t) for image, t in zip(images[1:], truth[1:])]
         print(f'studio-arm noise={noise} {name} change IoU', np.round(scores, 3))
         assert max(scores) < 0.5          # a standing subject is not a change: background segmenter there
+
+
+def _arm_beside_trunk(noise: float, slit: int, seed: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Background, a frame with a trunk and an arm ``slit`` px apart (open at the bottom), the true mask."""
+    rng = np.random.default_rng(seed)
+    background = cv2.GaussianBlur(rng.normal(120, 25, (120, 160)), (0, 0), 3).clip(0, 255)
+    truth = np.zeros((120, 160), bool)
+    truth[20:100, 40:80] = True                              # trunk
+    truth[20:70, 80 + slit:92 + slit] = True                 # arm hanging beside it
+    truth[20:26, 80:80 + slit] = True                        # shoulder joins them at the top
+    frame = np.where(truth, 185.0, background)
+    noisy = lambda img: (img + rng.normal(0, noise, img.shape)).clip(0, 255).round().astype(np.uint8)  # noqa: E731
+    return noisy(background), noisy(frame), truth
+
+
+@pytest.mark.parametrize('slit', [1, 2, 3, 4])
+def test_noise_free_frames_keep_the_slit_between_arm_and_trunk(slit):
+    background, frame, truth = _arm_beside_trunk(0.0, slit)
+    segmenter = Segmenter(segmenter='background', threshold=1.0, background_frames=1, keep='all')
+    segmenter.process(background)
+    mask = segmenter.process(frame).mask
+    assert mask[30:68, 80:80 + slit].sum() == 0             # the slit stays open down its whole length
+    assert (mask ^ truth).sum() <= 4                         # and nothing else moves (the slit's closed top end)
+    closed = Segmenter(segmenter='background', threshold=1.0, background_frames=1, keep='all', exact_noise=0.0)
+    closed.process(background)
+    assert closed.process(frame).mask[30:68, 80:80 + slit].all()   # the old behaviour: cleanup closes it
+
+
+def test_carving_stops_at_the_person_and_is_off_under_noise():
+    background, frame, truth = _arm_beside_trunk(3.0, 2)
+    segmenter = Segmenter(segmenter='background', threshold=1.0, background_frames=1, keep='all')
+    segmenter.process(background)
+    mask = segmenter.process(frame).mask
+    assert mask[30:68, 80:82].all()                          # noise: per-pixel tests unsafe, slit closed as before
+    assert (mask & truth).sum() >= 0.99 * truth.sum()
+    # an unchanged patch enclosed by the person is not background reaching in
+    enclosed = np.zeros((20, 20), bool)
+    enclosed[2:18, 2:18] = True
+    difference = np.where(enclosed, 50.0, 0.0).astype(np.float32)
+    difference[8:12, 8:12] = 0.0
+    carved = carve_background_channels(enclosed, difference, 0.5)
+    assert carved[8:12, 8:12].all() and carved.sum() == enclosed.sum()
+    difference[8:12, 2:12] = 0.0                             # now joined to the outside
+    assert carve_background_channels(enclosed, difference, 0.5)[8:12, 8:12].sum() == 0
 
 
 def test_background_segmenter_follows_a_global_lighting_change():

@@ -36,6 +36,8 @@ from memo_ros.core.change_detection import NOISE_FACTOR, ChangeDetector, ChangeR
 SEGMENTERS = ('background', 'change', 'sequence')
 KEEP_MODES = ('largest', 'all', 'tracked')
 _EMPTY_OUTLINE = np.zeros((0, 2), np.int32)
+PIXEL_FLOOR = 0.5        # grey levels: a pixel differing by less is unchanged even in noise-free frames (uint8 steps)
+EXACT_FILL_ABOVE = 7     # cleanup k2 for exact frames: fill pinholes only (a 1 px slit's closed end has 7 neighbours)
 
 
 # ------------------------------------------------------------------ cleanup
@@ -252,6 +254,20 @@ def refine_boundary(raw: np.ndarray, filled: np.ndarray, difference: np.ndarray,
     return cv2.bitwise_or(core, band).view(bool)
 
 
+def carve_background_channels(mask: np.ndarray, difference: np.ndarray, pixel_threshold: float) -> np.ndarray:
+    """Remove from ``mask`` the unchanged pixels (|d| <= t) that connect 4-wise to the outside (bool)."""
+    # The 5x5 fit of eq. (1) spreads 2 px from either side of a gap, so a slit up to 4 px wide (an arm
+    # hanging next to the trunk) is flagged in full and is no band pixel of refine_boundary.  Where the
+    # per-pixel test is exact (noise-free frames) the background reaching in through the slit is removed;
+    # unchanged pixels enclosed by the person (a part with the background's grey) stay.
+    unchanged = cv2.compare(cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_LE)   # 0 / 255
+    free = cv2.bitwise_or(unchanged, cv2.compare(mask.view(np.uint8), 0, cv2.CMP_EQ))
+    free = cv2.copyMakeBorder(free, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=255)
+    _, labels = cv2.connectedComponents(free, connectivity=4)
+    outside = labels[1:-1, 1:-1] == labels[0, 0]
+    return mask & ~outside
+
+
 # -------------------------------------------------------------------- facade
 @dataclass
 class Segmentation:
@@ -285,7 +301,9 @@ class SegmenterSettings:
     keep: str = 'largest'                # 'largest', 'all' or 'tracked' (overlapping the prior)
     noise_factor: float = NOISE_FACTOR   # T is raised to this many sigmas of the measured noise (0: fixed T)
     refine: bool = True                  # per-pixel boundary refinement (undoes the 5x5 fit's spread)
-    pixel_factor: float = 2.5            # boundary pixels need |g_k - g_j| > max(pixel_factor sigma, 2)
+    pixel_factor: float = 2.5            # boundary pixels need |g_k - g_j| > max(pixel_factor sigma, 0.5)
+    exact_noise: float = 0.5             # below this noise sigma (grey levels) the per-pixel test is exact: carve
+                                         # background channels, do not fill 1 px slits (0: never)
     compensate_gain: bool = True         # background: follow slow global lighting changes
     learn_margin: int = 6                # sequence: pixels around the person not learnt from, px
     track_margin: int = 15               # tracked: the previous frame's person grown by this much is the prior
@@ -352,12 +370,17 @@ class Segmenter:
         raw = change.mask
         cleaned = cleanup(raw, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
         if s.refine and cleaned.any():
-            pixel_threshold = max(s.pixel_factor * change.sigma, 2.0)
+            pixel_threshold = max(s.pixel_factor * change.sigma, PIXEL_FLOOR)
+            exact = change.sigma < s.exact_noise
             x, y, w, h = _grown_box(cleaned, 3)
             window = np.s_[y:y + h, x:x + w]
             sharp = refine_boundary(raw[window], cleaned[window], change.difference[window], pixel_threshold)
+            fill_above = s.fill_above
+            if exact:     # no noise to clean: keep slits between parts, which cleanup would close
+                sharp = carve_background_channels(sharp, change.difference[window], pixel_threshold)
+                fill_above = max(fill_above, EXACT_FILL_ABOVE)
             cleaned = np.zeros_like(cleaned)
-            cleaned[window] = cleanup(sharp, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
+            cleaned[window] = cleanup(sharp, s.delete_below, fill_above, s.max_iterations, s.fill_holes)
         prior = self._prior(cleaned.shape) if s.keep == 'tracked' else None
         mask, regions = select_regions(cleaned, s.min_area, s.keep, prior)
         self.previous = mask
