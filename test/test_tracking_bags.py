@@ -48,10 +48,6 @@ def _summary(r: Replay) -> str:
             f'{e.mpjpe_mm.max():.1f} mm, worst joint {e.joint_mm.max():.1f} mm, worst axis {e.axis_deg.max():.2f} deg')
 
 
-@pytest.mark.xfail(strict=True, reason='out of reach so far: the left forearm and hand hang where no camera sees '
-                   'their flexion (inside the torso and thigh outlines from the side, along the front camera\'s '
-                   'axis, under the shoulder from above); segmentation bias of <1 px moves them: worst joint '
-                   '69 mm and axis 12 deg against 17.5 mm and 3.6 deg (MPJPE mean 10 mm)')
 def test_studio_arm_noise_free_within_one_percent_of_height_and_the_papers_orientation(ros_env, tmp_path):
     r = _replay(ros_env, tmp_path, 'studio-arm', noise=0.0)
     assert len(r.errors.stamps_ns) == r.truth_frames, _summary(r)

@@ -147,5 +147,5 @@ STUDIO_EMPTY_FRAMES = 10
 
 def _studio_contours() -> dict:
     """contour_node parameters for the studio: background learnt over the empty frames, every region kept."""
-    return {'segmenter': 'background', 'threshold': 4.0, 'background_frames': STUDIO_EMPTY_FRAMES,
+    return {'segmenter': 'background', 'threshold': 1.0, 'background_frames': STUDIO_EMPTY_FRAMES,
             'keep_regions': 'all'}
