@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.metrics import FrameErrors
