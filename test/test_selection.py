@@ -176,6 +176,9 @@ def test_a_part_no_live_camera_sees_is_unobserved_and_every_part_keeps_at_most_m
         a = CameraSelector(BODY, CAMERAS, SelectionSettings(max_cameras_per_part=limit)).assign(q, q)
         counts = a.selected.sum(axis=1)
         assert counts.max() <= limit and (counts >= 1).all()
+    every = CameraSelector(BODY, CAMERAS).assign(q, q)                 # default 0: every visible camera
+    visible = (np.nan_to_num(every.vi, nan=-1.0) >= SelectionSettings().vi_threshold)
+    assert np.array_equal(every.selected, visible) and visible.sum(axis=1).max() == 3
 
 
 def test_assignment_keeps_the_best_ranked_visible_cameras():
@@ -185,6 +188,9 @@ def test_assignment_keeps_the_best_ranked_visible_cameras():
     assert selected.tolist() == [[True, True, False], [False, False, False], [True, False, True]]
     assert observed.tolist() == [True, False, True]
     assert rank[0].tolist() == [1, 0, -1] and rank[2].tolist() == [1, -1, 0]   # equal observability: VI, then order
+    four = np.array([[0.9, 0.5, 0.3, 0.1], [0.4, 0.4, 0.4, 0.4]])          # a four-camera rig, no cap: all visible
+    selected, _, _ = assignment(four, np.ones((2, 4)), np.ones(4, bool), 0.2, 0)
+    assert selected.tolist() == [[True, True, True, False], [True, True, True, True]]
 
 
 def test_all_cameras_mode_assigns_every_live_camera_to_every_part():
@@ -194,7 +200,7 @@ def test_all_cameras_mode_assigns_every_live_camera_to_every_part():
     assert np.isnan(a.vi).all() and a.masks()['cam_side'].sum() == 0
 
 
-@pytest.mark.parametrize('bad', [dict(vi_threshold=1.5), dict(max_cameras_per_part=0), dict(max_cameras_per_part=4),
+@pytest.mark.parametrize('bad', [dict(vi_threshold=1.5), dict(max_cameras_per_part=-1), dict(max_cameras_per_part=65),
                                  dict(render_scale=0.0), dict(observability_norm='max'),
                                  dict(camera_timeout_s=0.0)])
 def test_bad_settings_are_refused_with_the_reason(bad):

@@ -80,7 +80,7 @@ def test_assignment_message_round_trips_and_prints_as_a_table():
 
 
 def test_bad_parameters_are_refused_at_start_with_one_line(ros_env, tmp_path):
-    cases = {'max_cameras_per_part': ('-p', 'max_cameras_per_part:=4'),
+    cases = {'max_cameras_per_part': ('-p', 'max_cameras_per_part:=65'),
              'observability_norm': ('-p', 'observability_norm:=max'),
              'vi_threshold': ('-p', 'vi_threshold:=1.5')}
     processes = {name: _start_node(ros_env, STUDIO, *args) for name, args in cases.items()}
@@ -191,7 +191,7 @@ def test_runtime_parameters_are_validated_and_bad_input_is_counted_with_its_reas
             executor.spin_until_future_complete(future, timeout_sec=10)
             return future.result().results[0]
 
-        refused = set_parameter('max_cameras_per_part', 4)
+        refused = set_parameter('max_cameras_per_part', 65)
         assert not refused.successful and 'max_cameras_per_part' in refused.reason
         refused = set_parameter('observability_norm', 'max')
         assert not refused.successful and 'norm_of_sum' in refused.reason

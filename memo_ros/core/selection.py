@@ -10,7 +10,7 @@ of t-1 for the motion):
   part's visible occluding-contour nodes, combined as the paper's
   ``|| sum_j dx_j ||`` (§4) or, as an option, ``sum_j || dx_j ||``;
 - the assignment: the cameras with VI >= threshold (§4: 0.2), ranked by
-  observability (ties by VI), at most ``max_cameras_per_part``; a part that no
+  observability (ties by VI), at most ``max_cameras_per_part`` (0: all); a part that no
   camera sees is unobserved, so the tracker only predicts it.
 
 The occluding-contour nodes of an elliptic cylinder are its two contour
@@ -34,12 +34,14 @@ MODE_PREDICTED = 'predicted'
 MODE_ALL_CAMERAS = 'all_cameras'
 
 
+MAX_CAMERAS = 64                         # most cameras per part a setting may ask for
+
 @dataclass(frozen=True)
 class SelectionSettings:
     """The selector's tunables (the node's parameters), validated on construction."""
 
     vi_threshold: float = 0.2            # §4: part i visible from camera k when VI(i, k) >= 0.2
-    max_cameras_per_part: int = 3        # 1..3 cameras kept per part, best observability first (3: every visible one)
+    max_cameras_per_part: int = 0        # cameras kept per part, best observability first (0: every visible one)
     render_scale: float = 0.25           # label images at this fraction of the camera resolution
     observability_norm: str = 'norm_of_sum'   # §4's || sum dx ||, or 'sum_of_norms'
     camera_timeout_s: float = 0.5        # a camera silent for longer (in stamps) is excluded
@@ -51,8 +53,8 @@ class SelectionSettings:
         problems = []
         if not 0.0 <= self.vi_threshold <= 1.0:
             problems.append(f'vi_threshold={self.vi_threshold} is outside [0, 1]')
-        if not 1 <= int(self.max_cameras_per_part) <= 3 or int(self.max_cameras_per_part) != self.max_cameras_per_part:
-            problems.append(f'max_cameras_per_part={self.max_cameras_per_part} is not an integer in [1, 3]')
+        if not 0 <= int(self.max_cameras_per_part) <= MAX_CAMERAS or int(self.max_cameras_per_part) != self.max_cameras_per_part:
+            problems.append(f'max_cameras_per_part={self.max_cameras_per_part} is not an integer in [0, {MAX_CAMERAS}]')
         if not 0.05 <= self.render_scale <= 1.0:
             problems.append(f'render_scale={self.render_scale} is outside [0.05, 1]')
         if self.observability_norm not in NORMS:
@@ -237,13 +239,13 @@ def observability(camera: Camera, part: np.ndarray, local: np.ndarray, prev: tup
 
 def assignment(vi: np.ndarray, obs: np.ndarray, alive: np.ndarray, threshold: float,
                max_cameras: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """§4 selection: visible (VI >= threshold, alive) cameras ranked by observability, at most ``max_cameras``.
+    """§4 selection: visible (VI >= threshold, alive) cameras ranked by observability, at most ``max_cameras`` (0: all).
 
     Returns selected (P, K), observed (P,) and rank (P, K); a visible part always keeps its best camera.
     """
     visible = (np.nan_to_num(vi, nan=-1.0) >= threshold) & alive[None, :]
     rank = rank_selected(visible, obs, vi)
-    selected = (rank >= 0) & (rank < max_cameras)
+    selected = (rank >= 0) & ((rank < max_cameras) | (max_cameras <= 0))
     return selected, visible.any(axis=1), np.where(selected, rank, -1)
 
 

@@ -44,7 +44,8 @@ K_TOLERANCE = 1e-6          # relative difference allowed between a camera_info'
 PARAMS = (
     Param('vi_threshold', 0.2, 'a part is visible from a camera when its visibility index (visible / unoccluded '
           'projected area) is at least this (Kakadiaris §4: 0.2)', 0.0, 1.0),
-    Param('max_cameras_per_part', 3, 'most cameras assigned to one part, best observability first', 1, 3),
+    Param('max_cameras_per_part', 0, 'most cameras assigned to one part, best observability first; 0: every '
+          'visible camera', 0, 64),
     Param('render_scale', 0.25, 'resolution of the visibility label images as a fraction of each camera\'s',
           0.05, 1.0),
     Param('observability_norm', 'norm_of_sum', "how a part's predicted contour-node image motion is combined: "
