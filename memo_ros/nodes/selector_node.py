@@ -118,8 +118,9 @@ class SelectorNode(Node):
         self.publisher = self.create_publisher(DiagnosticArray, ASSIGNMENT_TOPIC, reliable)
         self.health.set('cameras', ','.join(self.names))
         self.get_logger().info(f'studio {self.studio.name}: cameras {", ".join(self.names)}; '
-                               f'vi_threshold {self.settings.vi_threshold}, max {self.settings.max_cameras_per_part} '
-                               f'cameras per part, {self.settings.observability_norm}')
+                               f'vi_threshold {self.settings.vi_threshold}, '
+                               f'{self.settings.max_cameras_per_part or "every visible"} camera(s) per part at most, '
+                               f'{self.settings.observability_norm}')
 
     # ------------------------------------------------------------ parameters
     def _on_parameters_set(self) -> None:
