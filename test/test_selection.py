@@ -20,6 +20,9 @@ def part(name: str) -> int:
     return PART_NAMES.index(name)
 
 
+PAPER_VI = 0.2                         # Kakadiaris §4's visibility threshold (the default is 0)
+
+
 def cam(name: str) -> int:
     return NAMES.index(name)
 
@@ -27,12 +30,14 @@ def cam(name: str) -> int:
 def test_part_hidden_behind_the_torso_has_vi_near_0_there_and_near_1_from_an_orthogonal_camera():
     q = BODY.neutral()                 # right arm hanging a little away from the torso's right side
     q[BODY.coordinate_index('shoulder_r_x')] = -0.2                   # cam_side looks from the body's left
-    a = CameraSelector(BODY, CAMERAS).assign(q, q)
+    a = CameraSelector(BODY, CAMERAS, SelectionSettings(vi_threshold=PAPER_VI)).assign(q, q)
     arm = part('upper_arm_r')
     assert a.vi[arm, cam('cam_side')] < 0.05
     assert a.vi[arm, cam('cam_front')] > 0.95
     assert 'cam_side' not in a.cameras_for(arm) and a.cameras_for(arm)[0] in ('cam_front', 'cam_top')
     assert a.observed.all()                            # every part is seen by some camera
+    default = CameraSelector(BODY, CAMERAS).assign(q, q)                 # vi_threshold 0: the arm is in its view
+    assert default.cameras_for(arm)[-1] == 'cam_side' and len(default.cameras_for(arm)) == 3
 
 
 def _vertical_cylinder_pose(y: float, x: float) -> tuple[np.ndarray, np.ndarray]:
@@ -69,7 +74,7 @@ def test_vi_matches_the_analytic_area_ratio_of_two_overlapping_cylinders(offset,
 @pytest.mark.parametrize('norm', ['norm_of_sum', 'sum_of_norms'])
 @pytest.mark.parametrize('camera', NAMES)
 def test_motion_along_a_cameras_optical_axis_ranks_that_camera_last(camera, norm):
-    settings = SelectionSettings(max_cameras_per_part=3, observability_norm=norm)
+    settings = SelectionSettings(vi_threshold=PAPER_VI, max_cameras_per_part=3, observability_norm=norm)
     q_prev = BODY.neutral()
     q_pred = q_prev.copy()
     q_pred[0:3] += 0.05 * CAMERAS[cam(camera)].R_world_cam[:, 2]          # 5 cm along the optical axis
@@ -83,9 +88,9 @@ def test_motion_along_a_cameras_optical_axis_ranks_that_camera_last(camera, norm
             checked += 1
     assert checked >= 5
     # with two cameras per part, a camera the part moves straight towards is left out wherever there is a choice
-    two = CameraSelector(BODY, CAMERAS, SelectionSettings(max_cameras_per_part=2,
+    two = CameraSelector(BODY, CAMERAS, SelectionSettings(vi_threshold=PAPER_VI, max_cameras_per_part=2,
                                                           observability_norm=norm)).assign(q_prev, q_pred)
-    seen_by_three = (two.vi >= 0.2).all(axis=1)
+    seen_by_three = (two.vi >= PAPER_VI).all(axis=1)
     assert seen_by_three.any() and not two.selected[seen_by_three, k].any()
 
 
@@ -168,7 +173,8 @@ def test_camera_timeout_drops_the_camera_and_restores_it_when_it_comes_back():
 
 def test_a_part_no_live_camera_sees_is_unobserved_and_every_part_keeps_at_most_max_cameras():
     q = BODY.neutral()
-    only_side = CameraSelector(BODY, CAMERAS).assign(q, q, {'cam_front': False, 'cam_top': False})
+    only_side = CameraSelector(BODY, CAMERAS, SelectionSettings(vi_threshold=PAPER_VI)).assign(
+        q, q, {'cam_front': False, 'cam_top': False})
     arm = part('upper_arm_r')
     assert not only_side.observed[arm] and only_side.cameras_for(arm) == []
     assert only_side.observed[part('upper_arm_l')] and only_side.cameras_for(part('upper_arm_l')) == ['cam_side']

@@ -239,7 +239,9 @@ def test_studio_arm_bag_the_occluded_arm_is_not_selected_from_the_camera_it_is_h
     sim = simulate('studio-arm', tmp_path / 'arm', frames=frames, width=320, height=240, empty_frames=0)
     # 320x240 images: a label scale of 0.5 gives the 160x120 label images the default 0.25 gives at 640x480
     # the selector alone on the bag's camera_info, without contour nodes (require_contours off)
+    # the paper's VI criterion (vi_threshold 0.2; the default 0 keeps every camera the part projects into)
     node_process = _start_node(ros_env, sim.studio, '-p', 'render_scale:=0.5', '-p', 'require_contours:=false',
+                               '-p', 'vi_threshold:=0.2',
                                '--log-level', 'selector_node:=debug')
     out = tmp_path / 'assignments'
     recorder = ros_env.start('bag', 'record', '-o', out, '/memo/camera_assignment', '--max-messages', frames,

@@ -40,7 +40,7 @@ MAX_CAMERAS = 64                         # most cameras per part a setting may a
 class SelectionSettings:
     """The selector's tunables (the node's parameters), validated on construction."""
 
-    vi_threshold: float = 0.2            # §4: part i visible from camera k when VI(i, k) >= 0.2
+    vi_threshold: float = 0.0            # part i visible from camera k when VI(i, k) >= this (§4: 0.2; 0: in view)
     max_cameras_per_part: int = 0        # cameras kept per part, best observability first (0: every visible one)
     render_scale: float = 0.25           # label images at this fraction of the camera resolution
     observability_norm: str = 'norm_of_sum'   # §4's || sum dx ||, or 'sum_of_norms'

@@ -42,8 +42,9 @@ POSTERIOR_HISTORY = 20
 K_TOLERANCE = 1e-6          # relative difference allowed between a camera_info's K and the studio's
 
 PARAMS = (
-    Param('vi_threshold', 0.2, 'a part is visible from a camera when its visibility index (visible / unoccluded '
-          'projected area) is at least this (Kakadiaris §4: 0.2)', 0.0, 1.0),
+    Param('vi_threshold', 0.0, 'a part is visible from a camera when its visibility index (visible / unoccluded '
+          'projected area) is at least this; 0: every camera it projects into (Kakadiaris §4 uses 0.2, which '
+          'drops partial views the tracker needs)', 0.0, 1.0),
     Param('max_cameras_per_part', 0, 'most cameras assigned to one part, best observability first; 0: every '
           'visible camera', 0, 64),
     Param('render_scale', 0.25, 'resolution of the visibility label images as a fraction of each camera\'s',
