@@ -133,6 +133,8 @@ def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
     reader = open_bag(path)
     try:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        if not conns:                # rosbags reads every connection when given none
+            return
         classes = {c.id: import_message_type(c.msgtype) for c in conns}
         for conn, timestamp, data in reader.messages(connections=conns):
             yield BagMessage(conn.topic, conn.msgtype, timestamp, deserialize_message(data, classes[conn.id]))
