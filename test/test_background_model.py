@@ -3,8 +3,8 @@ import cv2
 import numpy as np
 import pytest
 
-from memo_ros.core.background_model import (BackgroundModel, SequenceSegmenter, compare, estimate_background,
-                                            evenly_spaced, masked_median)
+from memo_ros.core.background_model import (BackgroundModel, SequenceSegmenter, background_from_frames, compare,
+                                            estimate_background, evenly_spaced, masked_median)
 from memo_ros.core.contours import ContourPipeline
 from memo_ros.core.segmentation import select_regions
 
@@ -70,6 +70,31 @@ def test_sequence_background_has_no_ghost_where_the_plain_median_keeps_one():
     assert np.percentile(error_model[seen_covered], 90) < 8      # and learnt right
     assert np.percentile(error_model[~covered], 99) < 8          # elsewhere too
     assert model.noise < 4.0
+
+
+def test_a_person_standing_still_is_learnt_unless_his_tracked_place_is_excluded():
+    bg = scene()
+    rng = np.random.default_rng(3)
+    skin = np.array([90, 120, 200], np.float32)
+    images, masks = [], []
+    for k in range(40):                      # perfectly still at x = 50 for 26 frames, then at x = 115
+        m = person_mask(50 if k < 26 else 115, 60, 0.5)
+        img = bg.astype(np.float32) + rng.normal(0, 1.5, bg.shape)
+        img[m] = skin
+        images.append(np.clip(img, 0, 255).astype(np.uint8))
+        masks.append(m)
+    images, masks = np.stack(images), np.stack(masks)
+    there = masks[0]
+    error = lambda model: np.abs(model.image.astype(int) - bg).max(axis=-1)[there]   # noqa: E731
+    assert np.median(error(estimate_background(images))) > 40       # no motion there: he is the background
+    known = np.stack([cv2.dilate(m.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool) for m in masks])
+    model = estimate_background(images, known_person=known)
+    assert np.percentile(error(model), 95) < 8 and not model.unseen[there].any()   # from his 14 frames away
+    # background_from_frames asks person_at only for the frames it learns from
+    asked = []
+    spread = background_from_frames(list(images), 20, person_at=lambda i: asked.append(i) or known[i])
+    assert asked == evenly_spaced(40, 20).tolist()
+    assert np.median(error(spread)) < 8 and np.median(error(background_from_frames(list(images), 20))) > 40
 
 
 def test_compare_sees_a_colour_change_that_keeps_the_grey_level_and_not_the_noise():

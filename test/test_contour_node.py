@@ -180,3 +180,17 @@ def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_backgroun
     values, contours = run_node([person, person], 20)
     assert 'warming_up' not in values, values
     assert len(contours) == 2 and all(len(pointcloud_to_array(c)) > 20 for c in contours)
+
+
+def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_env, tmp_path):
+    from memo_ros.core.studio import Studio
+    sim = simulate('studio-arm', tmp_path / 'arm', frames=2, width=160, height=120)
+    studio = Studio.load(sim.studio)                 # the studio's node entries win over -p: set them there
+    studio.node_parameters['contour_node'].update(segmenter='sequence', background_bag=str(sim.bag),
+                                                  background_track=str(tmp_path / 'no_such_track'))
+    studio.save(tmp_path / 'studio.yaml')
+    node = ros_env.start_node('contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml')
+    out, _ = node.communicate(timeout=60)
+    assert node.returncode == 2, out
+    lines = [line for line in out.splitlines() if 'no_such_track' in line]
+    assert len(lines) == 1 and 'no bag at' in lines[0] and 'Traceback' not in out, out

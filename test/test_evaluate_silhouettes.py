@@ -11,7 +11,6 @@ import pytest
 from memo_ros.core.body import load_default_body
 from memo_ros.core.rotations import matrix_to_quat
 from memo_ros.core.silhouette_score import lost_after_start, silhouette_iou
-from memo_ros.core.tracked_region import parts_from_cylinders
 from memo_ros.tools.bagio import BagWriter, header, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
@@ -101,18 +100,39 @@ def test_lost_after_start_and_iou_helpers():
     assert np.isnan(silhouette_iou(np.zeros((2, 2), bool), np.zeros((2, 2), bool)))
 
 
-def test_markers_give_back_the_body_the_tracker_used():
-    from memo_ros.ros.body_messages import marker_array_message
+def test_markers_give_back_the_body_the_tracker_used(tmp_path):
+    from memo_ros.core.tracked_region import body_region, tracked_person
+    from memo_ros.ros.body_messages import MARKERS_TOPIC, marker_array_message, tracked_body_from_markers
+    from memo_ros.tools.bagio import BagError, tracked_bodies
     body = load_default_body()
     q = body.neutral()
     q[0] = 0.3
     rotations, origins = body.forward_kinematics(q)
-    markers = marker_array_message(0, body, rotations, origins).markers
-    centres = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in markers])
-    quats = np.array([[m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w]
-                      for m in markers])
-    from memo_ros.core.rotations import quat_to_matrix
-    scales = np.array([[m.scale.x, m.scale.y, m.scale.z] for m in markers])
-    back_origins, semi_axes, lengths = parts_from_cylinders(centres, quat_to_matrix(quats), scales)
+    stamp = 1_700_000_000_250_000_000
+    message = marker_array_message(stamp, body, rotations, origins)
+    back_stamp, (back_rotations, back_origins, semi_axes, lengths) = tracked_body_from_markers(message)
+    assert back_stamp == stamp and np.allclose(back_rotations, rotations, atol=1e-9)
     assert np.allclose(back_origins, origins, atol=1e-6)
     assert np.allclose(semi_axes, body.semi_axes) and np.allclose(lengths, body.lengths)
+    # a tracker's output bag gives them back by stamp; frames it did not track have no body
+    from rclpy.serialization import serialize_message
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from memo_ros.tools.bagio import TYPESTORE
+    writer = Writer(tmp_path / 'track', version=9, storage_plugin=StoragePlugin.MCAP)   # as replay records it
+    writer.open()
+    connection = writer.add_connection(MARKERS_TOPIC, 'visualization_msgs/msg/MarkerArray', typestore=TYPESTORE)
+    writer.write(connection, stamp, serialize_message(message))
+    writer.close()
+    bodies = tracked_bodies(tmp_path / 'track')
+    assert list(bodies) == [stamp]
+    from memo_ros.core.scenarios import studio_cameras
+    camera = studio_cameras(320, 240)[0]
+    person_at = tracked_person(camera, bodies, [stamp - 1, stamp], (240, 320), 4.0)
+    assert not person_at(0).any()
+    region = person_at(1)
+    assert np.array_equal(region, body_region(camera, rotations, origins, body.semi_axes, body.lengths, (240, 320),
+                                              4.0)) and 0.01 < region.mean() < 0.3
+    with BagWriter(tmp_path / 'empty') as writer:
+        writer.write('/memo/processed', stamp, header(stamp, 'lost'))
+    with pytest.raises(BagError, match='no tracked body'):
+        tracked_bodies(tmp_path / 'empty')

@@ -31,6 +31,7 @@ projection), which removes such ghosts once he has moved away.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -239,9 +240,12 @@ def as_channels_stack(frames: np.ndarray) -> np.ndarray:
 
 
 def estimate_background(frames: np.ndarray, threshold: float = 12.0, iterations: int = 2, min_seen: int = 3,
-                        gap: int = 3, box: int = 15, still: float = 6.0, exclude_margin: int = 4
-                        ) -> BackgroundModel:
-    """The background of a sequence that never shows it empty (see the module docstring), from (K, H, W[, C])."""
+                        gap: int = 3, box: int = 15, still: float = 6.0, exclude_margin: int = 4,
+                        known_person: np.ndarray | None = None) -> BackgroundModel:
+    """The background of a sequence that never shows it empty (see the module docstring), from (K, H, W[, C]).
+
+    ``known_person`` (K, H, W) bool: where the person is known to be in each frame (the tracked body's
+    projection), never learnt from, however still he stands there."""
     frames = as_channels_stack(frames)
     grey = np.stack([grey_of(f) for f in frames])
     if len(frames) > 1:
@@ -249,6 +253,8 @@ def estimate_background(frames: np.ndarray, threshold: float = 12.0, iterations:
         person_region = motion_regions(grey, gap)
     else:
         moving = person_region = np.zeros(grey.shape, bool)
+    if known_person is not None:
+        moving = moving | np.asarray(known_person, bool)
     excluded = moving
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * exclude_margin + 1, 2 * exclude_margin + 1))
     model = None
@@ -366,8 +372,14 @@ def evenly_spaced(count: int, most: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, count - 1, most)).astype(int))
 
 
-def background_from_frames(frames: list[np.ndarray], most: int, threshold: float = 12.0) -> BackgroundModel:
-    """:func:`estimate_background` of at most ``most`` frames spread evenly over a recording."""
+def background_from_frames(frames: list[np.ndarray], most: int, threshold: float = 12.0,
+                           person_at: Callable[[int], np.ndarray] | None = None) -> BackgroundModel:
+    """:func:`estimate_background` of at most ``most`` frames spread evenly over a recording.
+
+    ``person_at(i)``: where the person is known to be in frame i (bool (H, W)), e.g. the tracked body of a
+    first pass over the recording, asked for the frames learnt from only."""
     if not frames:
         raise ValueError('no frames to learn the background from')
-    return estimate_background(np.stack([frames[i] for i in evenly_spaced(len(frames), most)]), threshold)
+    chosen = evenly_spaced(len(frames), most)
+    known = None if person_at is None else np.stack([person_at(int(i)) for i in chosen])
+    return estimate_background(np.stack([frames[i] for i in chosen]), threshold, known_person=known)

@@ -8,6 +8,8 @@ with its diameters and length as the marker's scale.
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import cv2
 import numpy as np
 
@@ -47,3 +49,14 @@ def body_region(camera: Camera, rotations: np.ndarray, origins: np.ndarray, semi
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         full = cv2.dilate(full, kernel)
     return full.view(bool)
+
+
+def tracked_person(camera: Camera, bodies: dict[int, tuple], stamps: list[int], shape: tuple[int, int],
+                   margin_px: float) -> Callable[[int], np.ndarray]:
+    """``person_at(i)`` for :func:`~memo_ros.core.background_model.background_from_frames`: the body tracked at
+    ``stamps[i]`` (rotations, origins, semi_axes, lengths) projected and grown by ``margin_px``; nowhere when
+    that frame has no tracked body."""
+    def person_at(i: int) -> np.ndarray:
+        body = bodies.get(int(stamps[i]))
+        return np.zeros(shape, bool) if body is None else body_region(camera, *body, shape, margin_px)
+    return person_at

@@ -32,8 +32,8 @@ from visualization_msgs.msg import MarkerArray
 from memo_ros.core.background_model import background_from_frames, image_message_to_frame
 from memo_ros.core.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
-from memo_ros.core.rotations import quat_to_matrix
-from memo_ros.core.tracked_region import body_region, parts_from_cylinders
+from memo_ros.core.tracked_region import body_region, tracked_person
+from memo_ros.ros.body_messages import MARKERS_TOPIC, tracked_body_from_markers
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.lost_frames import LostFrameCounter
 from memo_ros.ros.messages import stamp_to_ns
@@ -41,7 +41,6 @@ from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
-MARKERS_TOPIC = '/memo/markers'
 
 PARAMS = (
     Param('segmenter', 'background', 'person segmentation: a static background learnt over the first frames, '
@@ -55,6 +54,11 @@ PARAMS = (
     Param('background_bag', '', 'sequence segmenter: a rosbag2 with this camera\'s image_raw of the same scene '
           '(the recording being replayed, or a clip taken before); the background is learnt from it at start-up '
           'instead of from the first live frames', read_only=True),
+    Param('background_track', '', 'sequence segmenter with background_bag: the tracker\'s output bag of a first '
+          'pass over that recording; its /memo/markers body, grown by background_track_margin, is never learnt '
+          'from (where the person stands still in most frames the background would show him)', read_only=True),
+    Param('background_track_margin', 4.0, 'background_track: the tracked body\'s projection grown by this many '
+          'pixels', 0.0, 200.0, read_only=True),
     Param('learn_margin', 6, 'sequence segmenter: pixels around the person and the tracked body not learnt from',
           0, 200),
     Param('roi_margin', 20.0, 'tracked region: the tracked body\'s projection grown by this many pixels', 0.0, 500.0),
@@ -160,15 +164,24 @@ class ContourNode(Node):
         path = self.params['background_bag']
         if not path or self.params['segmenter'] != 'sequence':
             return None
-        from memo_ros.tools.bagio import read_messages
+        from memo_ros.tools.bagio import read_messages, tracked_bodies
         topic = f'/{self.camera_name}/image_raw'
-        frames = [image_message_to_frame(m.message) for m in read_messages(path, [topic])]
-        if not frames:
+        messages = [m.message for m in read_messages(path, [topic])]
+        if not messages:
             raise ValueError(f'background_bag {path} has no {topic} images')
-        model = background_from_frames(frames, self.params['background_frames'], self.params['threshold'])
+        frames = [image_message_to_frame(m) for m in messages]
+        person_at, track = None, self.params['background_track']
+        if track:
+            if self.camera is None:
+                raise ValueError(f'background_track needs {self.camera_name}\'s calibration in the studio')
+            stamps = [stamp_to_ns(m.header.stamp) for m in messages]
+            person_at = tracked_person(self.camera, tracked_bodies(track), stamps, frames[0].shape[:2],
+                                       self.params['background_track_margin'])
+        model = background_from_frames(frames, self.params['background_frames'], self.params['threshold'], person_at)
         self.get_logger().info(f'background learnt from {min(len(frames), self.params["background_frames"])} of '
-                               f'{len(frames)} images of {path}: {int(model.unseen.sum())} pixels never seen, '
-                               f'noise {model.noise:.1f}')
+                               f'{len(frames)} images of {path}' + (f' without the body tracked in {track}' if track
+                                                                   else '') +
+                               f': {int(model.unseen.sum())} pixels never seen, noise {model.noise:.1f}')
         return model
 
     def _new_pipeline(self) -> ContourPipeline:
@@ -180,17 +193,9 @@ class ContourNode(Node):
 
     def _on_markers(self, msg: MarkerArray) -> None:
         """Keep the newest tracked body (one cylinder per part) for the next images."""
-        cylinders = [m for m in msg.markers if m.type == m.CYLINDER]
-        if not cylinders:
-            return
-        centres = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in cylinders])
-        rotations = quat_to_matrix(np.array([[m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
-                                              m.pose.orientation.w] for m in cylinders]))
-        scales = np.array([[m.scale.x, m.scale.y, m.scale.z] for m in cylinders])
-        origins, semi_axes, lengths = parts_from_cylinders(centres, rotations, scales)
-        stamp = stamp_to_ns(cylinders[0].header.stamp)
-        if self.markers is None or stamp >= self.markers[0]:
-            self.markers = (stamp, (rotations, origins, semi_axes, lengths))
+        tracked = tracked_body_from_markers(msg)
+        if tracked is not None and (self.markers is None or tracked[0] >= self.markers[0]):
+            self.markers = tracked
 
     def _tracked_region(self, stamp: int, shape: tuple[int, int]) -> np.ndarray | None:
         """The tracked body's projection grown by roi_margin, from markers at most roi_max_age older."""

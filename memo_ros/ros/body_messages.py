@@ -13,10 +13,12 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from memo_ros.core.body import PART_NAMES, Body
-from memo_ros.core.rotations import matrix_to_quat
+from memo_ros.core.rotations import matrix_to_quat, quat_to_matrix
+from memo_ros.core.tracked_region import parts_from_cylinders
 
 WORLD = 'world'
 MARKER_NAMESPACE = 'memo_body'
+MARKERS_TOPIC = '/memo/markers'       # visualization_msgs/MarkerArray: one cylinder per part
 PROCESSED_TOPIC = '/memo/processed'   # std_msgs/Header per frame a tracker finished, published or not
 
 
@@ -80,3 +82,18 @@ def root_pose_message(stamp_ns: int, rotation: np.ndarray, origin: np.ndarray,
     msg.pose.pose = _pose(rotation, origin)
     msg.pose.covariance = [float(v) for v in np.asarray(covariance, float).reshape(36)]
     return msg
+
+
+def tracked_body_from_markers(msg: MarkerArray) -> tuple[int, tuple[np.ndarray, ...]] | None:
+    """(stamp ns, (rotations, origins, semi_axes, lengths)) of the body a /memo/markers message draws; None
+    when it has no cylinders (the inverse of :func:`marker_array_message` for the parts)."""
+    cylinders = sorted((m for m in msg.markers if m.type == m.CYLINDER), key=lambda m: m.id)
+    if not cylinders:
+        return None
+    centres = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in cylinders])
+    rotations = quat_to_matrix(np.array([[m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
+                                          m.pose.orientation.w] for m in cylinders]))
+    scales = np.array([[m.scale.x, m.scale.y, m.scale.z] for m in cylinders])
+    origins, semi_axes, lengths = parts_from_cylinders(centres, rotations, scales)
+    stamp = int(cylinders[0].header.stamp.sec) * 1_000_000_000 + int(cylinders[0].header.stamp.nanosec)
+    return stamp, (rotations, origins, semi_axes, lengths)

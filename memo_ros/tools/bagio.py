@@ -156,3 +156,17 @@ def bag_topics(path: str | Path) -> dict[str, str]:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
         reader.close()
+
+
+def tracked_bodies(path: str | Path) -> dict[int, tuple]:
+    """Stamp (ns) -> (rotations, origins, semi_axes, lengths) of every body a tracker's output bag draws on
+    /memo/markers (a first pass over a recording, for learning its background with the person masked out)."""
+    from memo_ros.ros.body_messages import MARKERS_TOPIC, tracked_body_from_markers
+    bodies = {}
+    for m in read_messages(path, [MARKERS_TOPIC]):
+        tracked = tracked_body_from_markers(m.message)
+        if tracked is not None:
+            bodies[tracked[0]] = tracked[1]
+    if not bodies:
+        raise BagError(f'{path} has no tracked body on /memo/markers')
+    return bodies

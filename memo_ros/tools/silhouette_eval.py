@@ -20,9 +20,9 @@ from memo_ros.core.contours import ContourPipeline
 from memo_ros.core.encodings import image_message_to_grey
 from memo_ros.core.render import render_labels
 from memo_ros.core.silhouette_score import LostFrames, iou_summary, lost_after_start, silhouette_iou
-from memo_ros.core.tracked_region import body_region, parts_from_cylinders
+from memo_ros.core.tracked_region import body_region, parts_from_cylinders, tracked_person
+from memo_ros.ros.body_messages import MARKERS_TOPIC
 
-MARKERS_TOPIC = '/memo/markers'
 PROCESSED_TOPIC = '/memo/processed'
 
 
@@ -92,8 +92,9 @@ def _previous(stamps: np.ndarray, stamp: int) -> int | None:
 def evaluate_silhouettes(images: Path, estimate, outcomes: dict[int, str], studio, shape: ModelShape,
                          keep_frames: int = 4) -> SilhouetteReport:
     """Segment every camera's images as the contour nodes did and compare with the rendered estimate."""
-    from memo_ros.nodes.contour_node import pipeline_settings
-    params = dict(studio.node_parameters.get('contour_node', {}))
+    from memo_ros.nodes.contour_node import PARAMS, pipeline_settings
+    from memo_ros.tools.bagio import tracked_bodies
+    params = {q.name: q.default for q in PARAMS} | dict(studio.node_parameters.get('contour_node', {}))
     settings = pipeline_settings(params)
     colour = settings.segmenter == 'sequence'
     tracked = 'tracked' == settings.keep or colour
@@ -118,9 +119,13 @@ def evaluate_silhouettes(images: Path, estimate, outcomes: dict[int, str], studi
         if colour and bag:
             source = frames if Path(bag).resolve() == Path(images).resolve() or not Path(bag).exists() \
                 else _camera_images(Path(bag), name, colour)
+            person_at = None
+            if params['background_track']:
+                person_at = tracked_person(camera, tracked_bodies(params['background_track']), [s for s, _ in source],
+                                           source[0][1].shape[:2], params['background_track_margin'])
             pipeline.segmenter.method.set_model(background_from_frames([f for _, f in source],
                                                                        settings.background_frames,
-                                                                       settings.threshold))
+                                                                       settings.threshold, person_at))
         scores = per_camera.setdefault(name, {})
         for index, (stamp, image) in enumerate(frames):
             roi = None
