@@ -192,10 +192,28 @@ class Camera:
     def projection_jacobian_camera(self, Pc: np.ndarray) -> np.ndarray:
         """H: d(u, v)/d(optical-frame point) (..., 2, 3), eq. 8 extended by distortion and K; NaN behind."""
         Pc = np.asarray(Pc, float)
+        if not self.has_distortion:               # H = A perspective_jacobian(Pc), written out (no stacked 2x2 products)
+            return self._affine_perspective_jacobian(Pc)
         xy, _ = self._normalise(Pc)
         _, J_dist = self._distort(xy, jacobian=True)
         A = self.K[:2, :2]                                    # fx, skew; 0, fy
         return A @ J_dist @ perspective_jacobian(Pc)          # eq. 8 with f = 1, then distortion, then K
+
+    def _affine_perspective_jacobian(self, Pc: np.ndarray) -> np.ndarray:
+        """K[:2, :2] @ perspective_jacobian(Pc) (..., 2, 3) elementwise: the Jacobian without distortion."""
+        x, y, z = Pc[..., 0], Pc[..., 1], Pc[..., 2]
+        with np.errstate(divide='ignore', invalid='ignore'):
+            inv_z = np.where(z > MIN_DEPTH, 1.0 / z, np.nan)
+        cx, cy = -x * inv_z * inv_z, -y * inv_z * inv_z
+        fx, skew, fy = self.K[0, 0], self.K[0, 1], self.K[1, 1]
+        out = np.empty(Pc.shape[:-1] + (2, 3))
+        out[..., 0, 0] = fx * inv_z
+        out[..., 0, 1] = skew * inv_z
+        out[..., 0, 2] = fx * cx + skew * cy
+        out[..., 1, 0] = 0.0 * inv_z
+        out[..., 1, 1] = fy * inv_z
+        out[..., 1, 2] = fy * cy
+        return out
 
     def project_with_jacobian(self, P_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (..., 2) and d(u, v)/d(world point) (..., 2, 3) = H R^-1 (eq. 9's H C_R^-1)."""
