@@ -258,7 +258,7 @@ def ray_part_hits(cameras: list[Camera], ray_camera: np.ndarray, directions: np.
     n_parts = len(lengths)
     centres = np.array([np.asarray(c.t_world_cam, float) for c in cameras])              # (K, 3)
     r_world_cam = np.array([np.asarray(c.R_world_cam, float) for c in cameras])          # (K, 3, 3)
-    box = _BOX_CORNERS * np.c_[semi_axes, lengths][:, None]                  # (P, 8, 3) in the part frames
+    box = _BOX_CORNERS * np.concatenate([semi_axes, lengths[:, None]], axis=1)[:, None]                  # (P, 8, 3) in the part frames
     corners = np.matmul(box, rotations.transpose(0, 2, 1)) + origins[:, None]
     corners = (corners - centres[:, None, None]) @ r_world_cam[:, None]      # (K, P, 8, 3) in the camera frames
     depth = corners[..., 2]
@@ -354,10 +354,11 @@ class Matches:
 def _alignment(rays: ContourRays, candidates: Candidates, sample: np.ndarray, node: np.ndarray) -> np.ndarray:
     """n . k_z of each (sample, node) pair, over the rim's normal fan for rim nodes (eq. 13's left side)."""
     kz = rays.k[sample]
-    normal = candidates.normal[node]
-    side_align = _dot(normal, kz)
-    rim_align = fan_alignment(normal, candidates.cap[node], kz)
-    return np.where(candidates.rim[node], rim_align, side_align)
+    align = _dot(candidates.normal[node], kz)
+    rim = np.flatnonzero(candidates.rim[node])
+    if len(rim):                  # the fan only for the rim nodes' pairs (the same values, fewer gathers)
+        align[rim] = fan_alignment(candidates.normal[node[rim]], candidates.cap[node[rim]], kz[rim])
+    return align
 
 
 def _nearest_compatible(tree: cKDTree, queries: np.ndarray, k: int, gate_px: float,
