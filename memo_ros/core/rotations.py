@@ -19,11 +19,12 @@ def _as_float(a) -> np.ndarray:
 def hat(v) -> np.ndarray:
     """Skew-symmetric matrix (..., 3, 3) of vectors (..., 3), so that hat(a) @ b = a x b."""
     v = _as_float(v)
-    zero = np.zeros(v.shape[:-1])
+    out = np.zeros(v.shape[:-1] + (3, 3))
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([zero, -z, y], -1),
-                     np.stack([z, zero, -x], -1),
-                     np.stack([-y, x, zero], -1)], -2)
+    out[..., 0, 1], out[..., 0, 2] = -z, y
+    out[..., 1, 0], out[..., 1, 2] = z, -x
+    out[..., 2, 0], out[..., 2, 1] = -y, x
+    return out
 
 
 def rotvec_to_matrix(v) -> np.ndarray:
