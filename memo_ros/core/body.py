@@ -141,8 +141,6 @@ class Body:
         """
         q = np.asarray(q, float)
         batch = q.shape[:-1]
-        if not batch:                                  # one pose (the tracker's case): the chain on plain 3x3 arrays
-            return self._forward_kinematics_one(q)
         rotations = np.empty(batch + (len(PART_NAMES), 3, 3))
         origins = np.empty(batch + (len(PART_NAMES), 3))
         rotations[..., 0, :, :] = rotvec_to_matrix(q[..., 3:6])
@@ -153,20 +151,6 @@ class Body:
             rotations[..., j.child, :, :] = parent_r @ local[..., k, :, :]
             origins[..., j.child, :] = origins[..., j.parent, :] + parent_r @ j.offset
         return rotations, origins
-
-    def _forward_kinematics_one(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`forward_kinematics` of a single pose (n,): the same products, without indexing stacked arrays."""
-        n_parts = len(PART_NAMES)
-        rotations = [None] * n_parts
-        origins = [None] * n_parts
-        rotations[0] = rotvec_to_matrix(q[3:6])
-        origins[0] = q[0:3]
-        local = self._rests @ self._joint_rotations(q)
-        for k, j in enumerate(self.joints):
-            parent_r = rotations[j.parent]
-            rotations[j.child] = parent_r @ local[k]
-            origins[j.child] = origins[j.parent] + parent_r @ j.offset
-        return np.array(rotations), np.array(origins)
 
     def _joint_rotations(self, q: np.ndarray) -> np.ndarray:
         """Rotation of every joint in its child's rest frame (..., J, 3, 3) from the coordinates (..., n): ball
