@@ -29,7 +29,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from memo_ros.core.background_model import background_from_frames, image_message_to_frame
+from memo_ros.core.background_model import BackgroundModel, background_from_frames, image_message_to_frame
 from memo_ros.core.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
 from memo_ros.core.tracked_region import body_region, tracked_person
@@ -101,6 +101,15 @@ def pipeline_settings(params: dict) -> PipelineSettings:
         edge_low=p['edge_low'], edge_high=p['edge_high'], min_edge_length=p['min_edge_length'])
 
 
+def recording_background(frames: list[np.ndarray], stamps: list[int], camera, params: dict,
+                         bodies: dict[int, tuple] | None = None) -> BackgroundModel:
+    """The sequence segmenter's background of a recording (background_bag): at most background_frames of
+    ``frames``, without the ``bodies`` a first pass tracked at ``stamps`` (background_track) when given."""
+    person_at = None if bodies is None else tracked_person(camera, bodies, stamps, frames[0].shape[:2],
+                                                           params['background_track_margin'])
+    return background_from_frames(frames, params['background_frames'], params['threshold'], person_at)
+
+
 class ContourNode(Node):
     """Per-camera segmentation and contour extraction."""
 
@@ -169,15 +178,12 @@ class ContourNode(Node):
         messages = [m.message for m in read_messages(path, [topic])]
         if not messages:
             raise ValueError(f'background_bag {path} has no {topic} images')
+        track = self.params['background_track']
+        if track and self.camera is None:
+            raise ValueError(f'background_track needs {self.camera_name}\'s calibration in the studio')
         frames = [image_message_to_frame(m) for m in messages]
-        person_at, track = None, self.params['background_track']
-        if track:
-            if self.camera is None:
-                raise ValueError(f'background_track needs {self.camera_name}\'s calibration in the studio')
-            stamps = [stamp_to_ns(m.header.stamp) for m in messages]
-            person_at = tracked_person(self.camera, tracked_bodies(track), stamps, frames[0].shape[:2],
-                                       self.params['background_track_margin'])
-        model = background_from_frames(frames, self.params['background_frames'], self.params['threshold'], person_at)
+        model = recording_background(frames, [stamp_to_ns(m.header.stamp) for m in messages], self.camera,
+                                     self.params, tracked_bodies(track) if track else None)
         self.get_logger().info(f'background learnt from {min(len(frames), self.params["background_frames"])} of '
                                f'{len(frames)} images of {path}' + (f' without the body tracked in {track}' if track
                                                                    else '') +
@@ -253,9 +259,7 @@ class ContourNode(Node):
             # contours are in pixels and need no intrinsics: go on (the size check waits for camera_info)
             self.health.note('no_camera_info', 'image before any camera_info: processed without the size check')
         if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
-            self.pipeline.reset()
-            if self.background is not None:
-                self.pipeline.segmenter.method.set_model(self.background.copy())
+            self.pipeline = self._new_pipeline()
             self.markers = None
             self.lost.reset()
             self._saved_background = None

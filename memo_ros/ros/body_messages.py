@@ -15,6 +15,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from memo_ros.core.body import PART_NAMES, Body
 from memo_ros.core.rotations import matrix_to_quat, quat_to_matrix
 from memo_ros.core.tracked_region import parts_from_cylinders
+from memo_ros.ros.messages import stamp_to_ns
 
 WORLD = 'world'
 MARKER_NAMESPACE = 'memo_body'
@@ -95,5 +96,4 @@ def tracked_body_from_markers(msg: MarkerArray) -> tuple[int, tuple[np.ndarray, 
                                           m.pose.orientation.w] for m in cylinders]))
     scales = np.array([[m.scale.x, m.scale.y, m.scale.z] for m in cylinders])
     origins, semi_axes, lengths = parts_from_cylinders(centres, rotations, scales)
-    stamp = int(cylinders[0].header.stamp.sec) * 1_000_000_000 + int(cylinders[0].header.stamp.nanosec)
-    return stamp, (rotations, origins, semi_axes, lengths)
+    return stamp_to_ns(cylinders[0].header.stamp), (rotations, origins, semi_axes, lengths)

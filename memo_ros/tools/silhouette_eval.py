@@ -14,16 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from memo_ros.core.background_model import background_from_frames, image_message_to_frame
+from memo_ros.core.background_model import image_message_to_frame
 from memo_ros.core.body import PART_NAMES, Body
 from memo_ros.core.contours import ContourPipeline
 from memo_ros.core.encodings import image_message_to_grey
 from memo_ros.core.render import render_labels
 from memo_ros.core.silhouette_score import LostFrames, iou_summary, lost_after_start, silhouette_iou
-from memo_ros.core.tracked_region import body_region, parts_from_cylinders, tracked_person
-from memo_ros.ros.body_messages import MARKERS_TOPIC
-
-PROCESSED_TOPIC = '/memo/processed'
+from memo_ros.core.tracked_region import body_region
+from memo_ros.ros.body_messages import MARKERS_TOPIC, PROCESSED_TOPIC, tracked_body_from_markers
 
 
 @dataclass
@@ -55,12 +53,10 @@ def model_shape(estimate: Path, body: Body) -> ModelShape:
         messages = read_messages(estimate, [MARKERS_TOPIC])
         try:
             for m in messages:
-                cylinders = sorted((k for k in m.message.markers if k.type == k.CYLINDER), key=lambda k: k.id)
-                if len(cylinders) != len(PART_NAMES):
+                tracked = tracked_body_from_markers(m.message)
+                if tracked is None or len(tracked[1][3]) != len(PART_NAMES):
                     continue
-                scales = np.array([[k.scale.x, k.scale.y, k.scale.z] for k in cylinders])
-                _, semi_axes, lengths = parts_from_cylinders(np.zeros((len(scales), 3)),
-                                                             np.tile(np.eye(3), (len(scales), 1, 1)), scales)
+                _, _, semi_axes, lengths = tracked[1]
                 return ModelShape(semi_axes, lengths)
         finally:
             messages.close()
@@ -92,14 +88,16 @@ def _previous(stamps: np.ndarray, stamp: int) -> int | None:
 def evaluate_silhouettes(images: Path, estimate, outcomes: dict[int, str], studio, shape: ModelShape,
                          keep_frames: int = 4) -> SilhouetteReport:
     """Segment every camera's images as the contour nodes did and compare with the rendered estimate."""
-    from memo_ros.nodes.contour_node import PARAMS, pipeline_settings
+    from memo_ros.nodes.contour_node import PARAMS, pipeline_settings, recording_background
     from memo_ros.tools.bagio import tracked_bodies
     params = {q.name: q.default for q in PARAMS} | dict(studio.node_parameters.get('contour_node', {}))
     settings = pipeline_settings(params)
     colour = settings.segmenter == 'sequence'
     tracked = 'tracked' == settings.keep or colour
-    roi_margin = float(params.get('roi_margin', 20.0))
-    roi_age = float(params.get('roi_max_age', 0.5)) * 1e9
+    roi_margin = float(params['roi_margin'])
+    roi_age = float(params['roi_max_age']) * 1e9
+    bag = params['background_bag']
+    bodies = tracked_bodies(params['background_track']) if colour and bag and params['background_track'] else None
     est_stamps = np.array(sorted(estimate.origins), dtype=np.int64)
     cameras = studio.camera_names
     per_camera: dict[str, dict[int, float]] = {}
@@ -115,17 +113,11 @@ def evaluate_silhouettes(images: Path, estimate, outcomes: dict[int, str], studi
             picks = np.linspace(first, len(frames) - 1, min(keep_frames, len(frames) - first)).round()
             chosen = {int(k) for k in picks}
         pipeline = ContourPipeline(settings)
-        bag = params.get('background_bag') or ''
         if colour and bag:
             source = frames if Path(bag).resolve() == Path(images).resolve() or not Path(bag).exists() \
                 else _camera_images(Path(bag), name, colour)
-            person_at = None
-            if params['background_track']:
-                person_at = tracked_person(camera, tracked_bodies(params['background_track']), [s for s, _ in source],
-                                           source[0][1].shape[:2], params['background_track_margin'])
-            pipeline.segmenter.method.set_model(background_from_frames([f for _, f in source],
-                                                                       settings.background_frames,
-                                                                       settings.threshold, person_at))
+            pipeline.segmenter.method.set_model(recording_background([f for _, f in source], [s for s, _ in source],
+                                                                     camera, params, bodies))
         scores = per_camera.setdefault(name, {})
         for index, (stamp, image) in enumerate(frames):
             roi = None
