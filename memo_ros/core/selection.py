@@ -36,6 +36,7 @@ MODE_ALL_CAMERAS = 'all_cameras'
 
 MAX_CAMERAS = 64                         # most cameras per part a setting may ask for
 
+
 @dataclass(frozen=True)
 class SelectionSettings:
     """The selector's tunables (the node's parameters), validated on construction."""

@@ -27,7 +27,8 @@ from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 
 from memo_ros.core.body import PART_NAMES
 from memo_ros.core.motion import EXTRA_STATE_NAMES, ConstantVelocity
-from memo_ros.core.selection import NORMS, Assignment, CameraLiveness, CameraSelector, SelectionSettings
+from memo_ros.core.selection import (MAX_CAMERAS, NORMS, Assignment, CameraLiveness, CameraSelector,
+                                     SelectionSettings)
 from memo_ros.core.studio import Studio
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.health import NodeHealth
@@ -46,7 +47,7 @@ PARAMS = (
           'projected area) is at least this; 0: every camera it projects into (Kakadiaris §4 uses 0.2, which '
           'drops partial views the tracker needs)', 0.0, 1.0),
     Param('max_cameras_per_part', 0, 'most cameras assigned to one part, best observability first; 0: every '
-          'visible camera', 0, 64),
+          'visible camera', 0, MAX_CAMERAS),
     Param('render_scale', 0.25, 'resolution of the visibility label images as a fraction of each camera\'s',
           0.05, 1.0),
     Param('observability_norm', 'norm_of_sum', "how a part's predicted contour-node image motion is combined: "
