@@ -15,14 +15,15 @@ from launch_ros.actions import Node
 
 def _graph(context):
     from memo_ros.core.studio import load_studio, studio_path
+    from memo_ros.tools.launch import REPLAY_IMAGE_QUEUE, REPLAY_JOIN_TIMEOUT, ROLES
     path = str(studio_path(LaunchConfiguration('studio').perform(context)).resolve())
     reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
     role = LaunchConfiguration('role').perform(context)
-    if role not in ('all', 'cameras', 'tracking'):
-        raise ValueError(f'role must be all, cameras or tracking, not {role!r}')
+    if role not in ROLES:
+        raise ValueError(f'role must be one of {", ".join(ROLES)}, not {role!r}')
     studio = load_studio(path)
     nodes = [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
-                  parameters=[path, {'reliable_images': reliable, 'image_queue_depth': 100 if reliable else 5}],
+                  parameters=[path, {'reliable_images': reliable, 'image_queue_depth': REPLAY_IMAGE_QUEUE if reliable else 5}],
                   output='screen')
              for camera in studio.camera_names if role != 'tracking']
     if role == 'cameras':
@@ -31,7 +32,7 @@ def _graph(context):
         nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',
                           parameters=[path], output='screen'))
         nodes.append(Node(package='memo_ros', executable='tracker_node', name='tracker_node',
-                          parameters=[path, {'join_timeout': 3.0}] if reliable else [path], output='screen'))
+                          parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path], output='screen'))
     if 'walker_node' in studio.node_parameters:
         nodes.append(Node(package='memo_ros', executable='walker_node', name='walker_node',
                           parameters=[path], output='screen'))
