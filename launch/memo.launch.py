@@ -15,7 +15,7 @@ from launch_ros.actions import Node
 
 def _graph(context):
     from memo_ros.core.studio import load_studio, studio_path
-    from memo_ros.tools.launch import REPLAY_IMAGE_QUEUE, REPLAY_JOIN_TIMEOUT, ROLES
+    from memo_ros.tools.launch import REPLAY_IMAGE_QUEUE, REPLAY_JOIN_TIMEOUT, REPLAY_ROI_WAIT, ROLES
     path = str(studio_path(LaunchConfiguration('studio').perform(context)).resolve())
     reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
     role = LaunchConfiguration('role').perform(context)
@@ -23,7 +23,8 @@ def _graph(context):
         raise ValueError(f'role must be one of {", ".join(ROLES)}, not {role!r}')
     studio = load_studio(path)
     nodes = [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
-                  parameters=[path, {'reliable_images': reliable, 'image_queue_depth': REPLAY_IMAGE_QUEUE if reliable else 5}],
+                  parameters=[path, {'reliable_images': True, 'image_queue_depth': REPLAY_IMAGE_QUEUE,
+                                     'roi_wait': REPLAY_ROI_WAIT} if reliable else {}],
                   output='screen')
              for camera in studio.camera_names if role != 'tracking']
     if role == 'cameras':

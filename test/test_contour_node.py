@@ -194,3 +194,82 @@ def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_e
     assert node.returncode == 2, out
     lines = [line for line in out.splitlines() if 'no_such_track' in line]
     assert len(lines) == 1 and 'no bag at' in lines[0] and 'Traceback' not in out, out
+
+
+def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_it(ros_env, tmp_path):
+    # bag replay: whether the tracker's /memo/markers of frame t reach the node before the images of frame
+    # t + 1 must not decide the tracked region; with roi_wait the image waits for them (at most roi_wait)
+    from visualization_msgs.msg import MarkerArray
+
+    from memo_ros.core.studio import Studio
+    from memo_ros.ros.body_messages import marker_array_message
+    sim = simulate('studio-arm', tmp_path / 'arm', frames=4, width=160, height=120)
+    studio = Studio.load(sim.studio)                 # the studio's node entries win over -p: set them there
+    studio.node_parameters['contour_node'].update(keep_regions='tracked', background_frames=1, roi_wait=1.5)
+    studio.save(tmp_path / 'studio.yaml')
+    images = [m.message for m in read_messages(sim.bag, ['/cam_front/image_raw'])]
+    body = studio.body
+    q = body.neutral()
+    for name, value in studio.initial_pose.items():
+        q[body.coordinate_index(name)] = value
+    rotations, origins = body.forward_kinematics(q)
+    process = ros_env.start_node('contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml')
+    try:
+        with ros_session('roi_wait_feeder', ros_env.domain_id) as (node, executor):
+            image_pub = node.create_publisher(Image, '/cam_front/image_raw', 10)
+            marker_pub = node.create_publisher(MarkerArray, '/memo/markers', 10)
+            arrived: dict[int, float] = {}
+            node.create_subscription(PointCloud2, '/cam_front/contours',
+                                     lambda m: arrived.setdefault(stamp_to_ns(m.header.stamp), time.monotonic()), 10)
+            values: dict[str, str] = {}
+
+            def on_diagnostics(msg: DiagnosticArray) -> None:
+                for status in msg.status:
+                    if status.hardware_id == 'cam_front':
+                        values.update({kv.key: kv.value for kv in status.values})
+            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+
+            def spin(seconds: float, until=lambda: False) -> None:
+                end = time.monotonic() + seconds
+                while time.monotonic() < end and not until():
+                    executor.spin_once(timeout_sec=0.02)
+
+            deadline = time.monotonic() + 20
+            while image_pub.get_subscription_count() < 1 or marker_pub.get_subscription_count() < 1:
+                spin(0.1)
+                assert time.monotonic() < deadline, 'contour_node did not appear'
+            spin(1.0)
+            stamps = [stamp_to_ns(m.header.stamp) for m in images]
+
+            def send_image(k: int) -> float:
+                image_pub.publish(images[k])
+                return time.monotonic()
+
+            def send_markers(k: int) -> float:
+                marker_pub.publish(marker_array_message(stamps[k], body, rotations, origins))
+                return time.monotonic()
+
+            # before any tracked body the node does not wait: no tracker may be running
+            sent = send_image(0)
+            spin(5.0, lambda: stamps[0] in arrived)
+            assert arrived[stamps[0]] - sent < 1.0
+            send_markers(0)
+            spin(0.3)
+            sent = send_image(1)                         # the body of image 0 is in: no wait
+            spin(5.0, lambda: stamps[1] in arrived)
+            assert arrived[stamps[1]] - sent < 1.0
+            send_image(2)                                # the body of image 1 is not: it waits ...
+            spin(0.7)
+            assert stamps[2] not in arrived
+            told = send_markers(1)                       # ... until it comes
+            spin(5.0, lambda: stamps[2] in arrived)
+            assert 0 <= arrived[stamps[2]] - told < 0.5
+            sent = send_image(3)                         # the body of image 2 never comes: roi_wait, then on
+            spin(5.0, lambda: stamps[3] in arrived)
+            assert 1.4 < arrived[stamps[3]] - sent < 3.0
+            spin(3.0, lambda: 'roi_wait_timeouts' in values)
+            assert values.get('roi_wait_timeouts') == '1' and int(values['processed']) == 4, values
+            assert process.poll() is None
+    finally:
+        process.send_signal(2)
+        process.communicate(timeout=15)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -64,6 +65,9 @@ PARAMS = (
     Param('roi_margin', 20.0, 'tracked region: the tracked body\'s projection grown by this many pixels', 0.0, 500.0),
     Param('roi_max_age', 0.5, 'tracked region: /memo/markers older than the image by more than this (stamp time) '
           'are not used, s', 0.0, 3600.0),
+    Param('roi_wait', 0.0, "tracked region: longest wait for the tracker's body of the previous image before an "
+          'image is segmented, s (0: segment at once with the newest body; bag replay waits so that the result '
+          'does not depend on which message DDS delivers first)', 0.0, 10.0),
     Param('background_file', '', 'PNG where the learnt background is saved and, when it exists at start, loaded '
           'from instead of learning (a restarted node must not learn the person into it); empty: off',
           read_only=True),
@@ -88,6 +92,16 @@ PARAMS = (
     Param('image_queue_depth', 5, 'image subscription queue depth', 1, 1000, read_only=True),
 )
 INFO_QUEUE_DEPTH = 100      # camera_info is small: a deep queue keeps every frame's announcement
+
+
+@dataclass
+class PendingImage:
+    """An accepted image waiting (roi_wait) for the tracked body of the image before it."""
+    msg: Image
+    image: np.ndarray
+    stamp: int
+    previous_ns: int
+    timer: object
 
 
 def pipeline_settings(params: dict) -> PipelineSettings:
@@ -125,6 +139,7 @@ class ContourNode(Node):
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
         self.markers: tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None
+        self.pending: PendingImage | None = None
         self.lost = LostFrameCounter()
         self._saved_background = None
         self._load_background()
@@ -202,6 +217,24 @@ class ContourNode(Node):
         tracked = tracked_body_from_markers(msg)
         if tracked is not None and (self.markers is None or tracked[0] >= self.markers[0]):
             self.markers = tracked
+            if self.pending is not None and tracked[0] >= self.pending.previous_ns:
+                self._segment_pending()
+
+    def _waits_for_markers(self, previous_ns: int | None) -> bool:
+        """roi_wait: whether an image must wait for the tracked body of the image before it (only once the
+        tracker has sent a body: without a tracker running, images never wait)."""
+        return (self.params['roi_wait'] > 0 and self.camera is not None and self.markers is not None
+                and previous_ns is not None and self.markers[0] < previous_ns)
+
+    def _segment_pending(self, reason: str | None = None, message: str = '') -> None:
+        """Segment the image that waited for the tracked body: it came, or (``reason`` noted) the wait ran out
+        or another image came first."""
+        pending, self.pending = self.pending, None
+        pending.timer.cancel()
+        self.destroy_timer(pending.timer)
+        if reason:
+            self.health.note(reason, message)
+        self._segment(pending.msg, pending.image, pending.stamp)
 
     def _tracked_region(self, stamp: int, shape: tuple[int, int]) -> np.ndarray | None:
         """The tracked body's projection grown by roi_margin, from markers at most roi_max_age older."""
@@ -255,6 +288,9 @@ class ContourNode(Node):
     def _on_image(self, msg: Image) -> None:
         self.health.count('frames_in')
         stamp = stamp_to_ns(msg.header.stamp)
+        if self.pending is not None:          # another image: the waiting one goes first, with what there is
+            self._segment_pending('roi_wait_overtaken', 'an image came before the tracker\'s body of the one '
+                                                        'waiting for it: segmented with an older body')
         if self.camera_info is None:
             # contours are in pixels and need no intrinsics: go on (the size check waits for camera_info)
             self.health.note('no_camera_info', 'image before any camera_info: processed without the size check')
@@ -281,7 +317,17 @@ class ContourNode(Node):
             self.health.drop('size_mismatch', f'image {msg.width}x{msg.height} differs from camera_info '
                                               f'{info.width}x{info.height}')
             return
-        self.last_stamp_ns = stamp
+        previous_ns, self.last_stamp_ns = self.last_stamp_ns, stamp
+        if self._waits_for_markers(previous_ns):
+            self.pending = PendingImage(msg, image, stamp, previous_ns, self.create_timer(
+                self.params['roi_wait'], lambda: self._segment_pending(
+                    'roi_wait_timeouts', "the tracker's body of the previous image did not come within roi_wait: "
+                                         'segmented with an older one')))
+            return
+        self._segment(msg, image, stamp)
+
+    def _segment(self, msg: Image, image: np.ndarray, stamp: int) -> None:
+        """Segment one accepted image within the tracked region and publish its contours."""
         self.pipeline.set_roi(self._tracked_region(stamp, image.shape[:2]))
         result = self.pipeline.process(image)
         if self.pipeline.background is not None and self.pipeline.background is not self._saved_background:

@@ -21,6 +21,7 @@ from memo_ros.core.studio import Studio, studio_path
 STOP_GRACE_S = 5.0
 ROLES = ('all', 'cameras', 'tracking')
 REPLAY_IMAGE_QUEUE = 100     # image queue of the contour nodes when a bag is replayed into them
+REPLAY_ROI_WAIT = 0.5        # s a contour node waits for the tracked body of the previous image in a replay
 REPLAY_JOIN_TIMEOUT = 3.0    # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
                              # and with back-pressure the player waits anyway)
 
@@ -65,7 +66,8 @@ def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
                    '--params-file', str(path), '--log-level', log_level]
         if reliable_images:
             # replay: a burst of images re-sent to a late-matching reader must not overflow its queue
-            command += ['-p', 'reliable_images:=true', '-p', f'image_queue_depth:={REPLAY_IMAGE_QUEUE}']
+            command += ['-p', 'reliable_images:=true', '-p', f'image_queue_depth:={REPLAY_IMAGE_QUEUE}',
+                        '-p', f'roi_wait:={REPLAY_ROI_WAIT}']
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
     if role == 'cameras':
         return nodes
