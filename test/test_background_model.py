@@ -97,6 +97,29 @@ def test_a_person_standing_still_is_learnt_unless_his_tracked_place_is_excluded(
     assert np.median(error(spread)) < 8 and np.median(error(background_from_frames(list(images), 20))) > 40
 
 
+def test_the_ring_around_a_restless_person_is_learnt_from_the_frames_outside_his_tracked_body():
+    # he moves in every frame, so the motion patches and his grown masks cover a ring around him in nearly
+    # every frame; the tracked body alone leaves it seen, and its median there is the background
+    bg = scene()
+    rng = np.random.default_rng(5)
+    images, masks = [], []
+    for k in range(40):
+        m = person_mask(80 + 4 * np.sin(1.3 * k), 60 + 2 * np.cos(0.9 * k), 3 * np.sin(0.7 * k))
+        img = bg.astype(np.float32) + rng.normal(0, 1.5, bg.shape)
+        img[m] = (90, 120, 200)
+        images.append(np.clip(img, 0, 255).astype(np.uint8))
+        masks.append(m)
+    known = np.stack([cv2.dilate(m.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool) for m in masks])
+    near = cv2.dilate(known.any(axis=0).view(np.uint8), np.ones((15, 15), np.uint8)).view(bool)
+    ring = near & ((~known).sum(axis=0) >= 3)            # seen at least 3 times outside the tracked body
+    strict = estimate_background(images)                 # without the body: motion and masks only
+    assert strict.unseen[ring].sum() > 500               # a wide ring left to inpainting
+    model = estimate_background(images, known_person=known)
+    error = np.abs(model.image.astype(int) - bg).max(axis=-1)
+    assert ring.sum() > 2000 and not model.unseen[ring].any()
+    assert np.percentile(error[ring], 99) < 8
+
+
 def test_compare_sees_a_colour_change_that_keeps_the_grey_level_and_not_the_noise():
     bg = scene()
     model = BackgroundModel(bg, np.full((H, W), 1.5, np.float32), np.ones((H, W), np.int32), 1.5)

@@ -24,7 +24,10 @@ plain per-pixel median of the frames keeps a "ghost" of him.
 
 A person who stands perfectly still longer than the background around him is
 visible still remains in it (nothing in one camera's pixels tells them
-apart); live, :meth:`BackgroundModel.update` keeps learning wherever the
+apart), unless his place is known (``known_person``: a first pass's tracked
+body, projected): it is then never learnt from, and pixels that steps 1 and 3
+leave unseen (a ring around a person who moves all the time) take the median
+of the frames outside that body instead of an inpainted guess.  Live, :meth:`BackgroundModel.update` keeps learning wherever the
 caller says the person is not (outside his grown mask and the tracked body's
 projection), which removes such ghosts once he has moved away.
 """
@@ -179,6 +182,15 @@ def masked_median(frames: np.ndarray, excluded: np.ndarray) -> tuple[np.ndarray,
     return np.where(count[..., None] > 0, median, 0).astype(np.uint8), count.astype(np.int32)
 
 
+def with_fallback(image: np.ndarray, count: np.ndarray, fallback: np.ndarray, fallback_count: np.ndarray,
+                  min_seen: int) -> tuple[np.ndarray, np.ndarray]:
+    """The median and count of ``fallback`` where ``image`` was seen fewer than ``min_seen`` times and it was not:
+    around a person who moves all the time, the motion patches and grown person masks exclude a ring in every
+    frame, but the tracked body alone leaves it seen (inpainting would guess it, and flag it in every frame)."""
+    use = (count < min_seen) & (fallback_count >= min_seen)
+    return np.where(use[..., None], fallback, image), np.where(use, fallback_count, count)
+
+
 def fill_unseen(image: np.ndarray, unseen: np.ndarray, radius: int = 5) -> np.ndarray:
     """The background with its unseen pixels inpainted from the seen ones around them (Telea)."""
     if not unseen.any():
@@ -253,13 +265,18 @@ def estimate_background(frames: np.ndarray, threshold: float = 12.0, iterations:
         person_region = motion_regions(grey, gap)
     else:
         moving = person_region = np.zeros(grey.shape, bool)
+    known_view = None
     if known_person is not None:
-        moving = moving | np.asarray(known_person, bool)
+        known_person = np.asarray(known_person, bool)
+        moving = moving | known_person
+        known_view = masked_median(frames, known_person)
     excluded = moving
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * exclude_margin + 1, 2 * exclude_margin + 1))
     model = None
     for iteration in range(max(int(iterations), 0) + 1):
         image, count = masked_median(frames, excluded)
+        if known_view is not None:
+            image, count = with_fallback(image, count, *known_view, min_seen)
         unseen = count < min_seen
         sigma, level = noise_level(frames, image, excluded)
         model = BackgroundModel(fill_unseen(image, unseen), sigma, np.where(unseen, 0, count).astype(np.int32),
