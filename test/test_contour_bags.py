@@ -11,7 +11,7 @@ from memo_ros.core.render import render
 from memo_ros.core.rotations import quat_to_matrix
 from memo_ros.core.studio import Studio
 from memo_ros.nodes.contour_node import pipeline_settings
-from memo_ros.tools.bagio import grey_images, read_messages, stamp_to_ns
+from memo_ros.ros.bagio import grey_images, read_messages, stamp_to_ns
 from memo_ros.tools.simulate import TRUTH_POSES, simulate
 
 CASES = [('studio-arm', 4), ('street-walk', 20)]

@@ -10,7 +10,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import pointcloud_to_array
-from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.simulate import simulate
 
 

@@ -14,7 +14,7 @@ from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.render import render
 from memo_ros.core.scenarios import make_scenario
 from memo_ros.core.segmentation import select_regions
-from memo_ros.tools.bagio import grey_images
+from memo_ros.ros.bagio import grey_images
 from memo_ros.tools.simulate import simulate
 
 WIDTH, HEIGHT = 640, 480

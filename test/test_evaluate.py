@@ -13,7 +13,7 @@ from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.metrics import phase_error
 from memo_ros.core.rotations import matrix_to_quat, rot_x
 from memo_ros.core.studio import Studio
-from memo_ros.tools.bagio import BagWriter, joint_state_msg, pose_array_msg
+from memo_ros.ros.bagio import BagWriter, joint_state_msg, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
 

@@ -11,7 +11,7 @@ import pytest
 from memo_ros.core.body import load_default_body
 from memo_ros.core.rotations import matrix_to_quat
 from memo_ros.core.silhouette_score import lost_after_start, silhouette_iou
-from memo_ros.tools.bagio import BagWriter, header, pose_array_msg
+from memo_ros.ros.bagio import BagWriter, header, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
 
@@ -103,7 +103,7 @@ def test_lost_after_start_and_iou_helpers():
 def test_markers_give_back_the_body_the_tracker_used(tmp_path):
     from memo_ros.core.tracked_region import body_region, tracked_person
     from memo_ros.ros.body_messages import MARKERS_TOPIC, marker_array_message, tracked_body_from_markers
-    from memo_ros.tools.bagio import BagError, tracked_bodies
+    from memo_ros.ros.bagio import BagError, tracked_bodies
     body = load_default_body()
     q = body.neutral()
     q[0] = 0.3
@@ -117,7 +117,7 @@ def test_markers_give_back_the_body_the_tracker_used(tmp_path):
     # a tracker's output bag gives them back by stamp; frames it did not track have no body
     from rclpy.serialization import serialize_message
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from memo_ros.tools.bagio import TYPESTORE
+    from memo_ros.ros.bagio import TYPESTORE
     writer = Writer(tmp_path / 'track', version=9, storage_plugin=StoragePlugin.MCAP)   # as replay records it
     writer.open()
     connection = writer.add_connection(MARKERS_TOPIC, 'visualization_msgs/msg/MarkerArray', typestore=TYPESTORE)

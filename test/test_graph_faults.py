@@ -20,7 +20,7 @@ from sensor_msgs.msg import CameraInfo
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.ros.assignment_messages import assignment_from_message
 from memo_ros.ros.dds import ros_session
-from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
 from memo_ros.tools.launch import REPLAY_JOIN_TIMEOUT
 from memo_ros.tools.simulate import simulate
@@ -185,7 +185,7 @@ def _with_encoding(bag: Path, out: Path, encoding: str) -> Path:
     from rclpy.serialization import serialize_message
     from rosbags.rosbag2 import Writer
 
-    from memo_ros.tools.bagio import TYPESTORE
+    from memo_ros.ros.bagio import TYPESTORE
     with Writer(out, version=9) as writer:
         connections = {}
         for m in read_messages(bag):

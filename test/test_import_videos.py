@@ -12,7 +12,7 @@ from memo_ros.core.body import load_default_body
 from memo_ros.core.calibration_formats import FORMATS, write_calibration
 from memo_ros.core.camera import Camera
 from memo_ros.core.studio import Studio
-from memo_ros.tools.bagio import BagWriter, camera_info_msg, image_msg, read_messages, stamp_to_ns
+from memo_ros.ros.bagio import BagWriter, camera_info_msg, image_msg, read_messages, stamp_to_ns
 from memo_ros.tools.export_videos import export_videos
 from memo_ros.tools.import_videos import (VideoImportError, fit_camera, import_videos, parse_frames,
                                           parse_offsets, scaled_camera)

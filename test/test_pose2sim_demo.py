@@ -35,7 +35,7 @@ def demo(tmp_path_factory):
                            str(DATA / 'Calib.qca.txt'), '--out', str(out), '--scale', '0.25', '--encoding', 'bgr8'],
                           env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    from memo_ros.tools.bagio import read_messages
+    from memo_ros.ros.bagio import read_messages
     studio = Studio.load(out.with_name(out.name + '.yaml'))
     frames = {c: [image_message_to_frame(m.message) for m in read_messages(out, [f'/{c}/image_raw'])]
               for c in studio.camera_names}

@@ -1,7 +1,7 @@
 """`memo-ros replay`: the live graph paced by back-pressure, every frame processed and its outputs recorded."""
 from __future__ import annotations
 
-from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
+from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
 from memo_ros.tools.simulate import simulate
 
 

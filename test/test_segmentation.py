@@ -13,7 +13,7 @@ from memo_ros.core.render import render
 from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, make_scenario
 from memo_ros.core.segmentation import (BackgroundSegmenter, Segmenter, carve_background_channels, cleanup,
                                         select_regions)
-from memo_ros.tools.bagio import grey_images
+from memo_ros.ros.bagio import grey_images
 from memo_ros.tools.simulate import simulate
 
 WIDTH, HEIGHT = 640, 480

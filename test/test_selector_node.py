@@ -25,7 +25,7 @@ from memo_ros.ros.assignment_messages import (assignment_from_message, assignmen
                                               assignment_to_message)
 from memo_ros.ros.body_messages import stamp_from_ns
 from memo_ros.ros.dds import ros_session
-from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.echo import CsvPrinter, YamlPrinter
 from memo_ros.tools.simulate import simulate
 

@@ -14,8 +14,8 @@ from memo_ros.core.render import render
 from memo_ros.core.rotations import quat_to_matrix
 from memo_ros.core.scenarios import STUDIO_EMPTY_FRAMES, SCENARIOS, make_scenario
 from memo_ros.core.studio import Studio
-from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
-from memo_ros.tools.bagio import grey_images as bag_grey_images
+from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
+from memo_ros.ros.bagio import grey_images as bag_grey_images
 from memo_ros.tools.simulate import ENCODINGS, START_NS, TRUTH_JOINTS, TRUTH_POSES, simulate
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -10,7 +10,7 @@ import numpy as np
 from memo_ros.core.imaging import ImagingOptions
 from memo_ros.core.metrics import FrameErrors
 from memo_ros.ros.assignment_messages import assignment_from_message
-from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
 from memo_ros.tools.simulate import simulate
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from memo_ros.ros.dds import ros_session
-from memo_ros.tools.bagio import read_messages, stamp_to_ns
+from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
 from memo_ros.tools.simulate import simulate
 

@@ -188,7 +188,7 @@ class ContourNode(Node):
         path = self.params['background_bag']
         if not path or self.params['segmenter'] != 'sequence':
             return None
-        from memo_ros.tools.bagio import read_messages, tracked_bodies
+        from memo_ros.ros.bagio import read_messages, tracked_bodies
         topic = f'/{self.camera_name}/image_raw'
         messages = [m.message for m in read_messages(path, [topic])]
         if not messages:

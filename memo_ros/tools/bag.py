@@ -32,7 +32,7 @@ from rosbags.typesys import Stores, get_typestore
 from memo_ros.ros.dds import (DURABILITY, RELIABILITY, absolute_topic, adapted_qos, player_segment, qos_profile,
                               ros_session, stop_on_signals, topic_types)
 from memo_ros.ros.messages import MessageTypeError, import_message_type
-from memo_ros.tools.bagio import BagError, open_bag
+from memo_ros.ros.bagio import BagError, open_bag
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 STORAGE_PLUGINS = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}

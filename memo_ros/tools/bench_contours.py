@@ -33,7 +33,7 @@ STAGES = ('convert', 'segment', 'cleanup', 'contours', 'edges')
 
 def _frames(bag: Path) -> list[tuple]:
     """The camera's image messages as (encoding, height, width, step, data, is_bigendian) tuples."""
-    from memo_ros.tools.bagio import read_messages
+    from memo_ros.ros.bagio import read_messages
     frames = []
     for m in read_messages(bag, [f'/{CAMERA}/image_raw']):
         msg = m.message

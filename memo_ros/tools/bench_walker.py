@@ -29,7 +29,7 @@ def _frames(bag: Path, studio) -> list[tuple[int, np.ndarray | None, np.ndarray]
     """(stamp, rectangle corners or None, edge lines) of every frame, as contour_node would publish them."""
     from memo_ros.core.contours import ContourPipeline
     from memo_ros.nodes.contour_node import pipeline_settings
-    from memo_ros.tools.bagio import grey_images
+    from memo_ros.ros.bagio import grey_images
     camera = studio.cameras[0]
     pipeline = ContourPipeline(pipeline_settings(studio.node_parameters.get('contour_node', {})))
     frames = []

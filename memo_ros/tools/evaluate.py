@@ -24,7 +24,7 @@ import numpy as np
 from memo_ros.core.body import PART_NAMES, load_default_body
 from memo_ros.core.metrics import FrameErrors, per_part_table, phase_error, pose_errors, summarize
 from memo_ros.core.rotations import quat_to_matrix
-from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
+from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
 
 ESTIMATE_TOPICS = ('/memo/body_poses', '/memo/joint_states')
 TRUTH_TOPICS = ('/memo/truth/body_poses', '/memo/truth/joint_states')

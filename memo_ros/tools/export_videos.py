@@ -20,7 +20,7 @@ import numpy as np
 from memo_ros.core.calibration_formats import DEFAULT_NAMES, FORMATS, UNITS, CalibrationError, write_calibration
 from memo_ros.core.encodings import ImageFormatError, image_to_array
 from memo_ros.core.studio import Studio
-from memo_ros.tools.bagio import BagError, bag_topics, open_bag, read_messages, stamp_to_ns
+from memo_ros.ros.bagio import BagError, bag_topics, open_bag, read_messages, stamp_to_ns
 from memo_ros.tools.import_videos import quiet_ffmpeg
 from memo_ros.tools.progress import Progress
 

@@ -27,7 +27,7 @@ from memo_ros.core.calibration_formats import (READ_FORMATS, UNITS, Calibration,
                                                load_calibration, ros_name)
 from memo_ros.core.camera import Camera
 from memo_ros.core.studio import Studio
-from memo_ros.tools.bagio import BagWriter, camera_info_msg, image_msg
+from memo_ros.ros.bagio import BagWriter, camera_info_msg, image_msg
 from memo_ros.tools.progress import Progress
 from memo_ros.tools.simulate import START_NS
 

@@ -161,7 +161,7 @@ def _nearest(stamps: np.ndarray, stamp: int) -> int:
 def _read_images(bag: Path, cameras: list[str], stamps: set[int]) -> dict[tuple[str, int], np.ndarray]:
     """Grey images (uint8) of ``cameras`` at header ``stamps``, stopping as soon as all are found."""
     from memo_ros.core.encodings import image_message_to_grey
-    from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
+    from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
     available = bag_topics(bag)
     topics = {f'/{c}/image_raw': c for c in cameras if f'/{c}/image_raw' in available}
     wanted = len(topics) * len(stamps)

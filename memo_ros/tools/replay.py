@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _bag_topics(bag: Path) -> dict[str, str]:
     """The bag's topics, read before anything is launched: an unreadable bag is a one-line error."""
-    from memo_ros.tools.bagio import BagError, bag_topics
+    from memo_ros.ros.bagio import BagError, bag_topics
     from memo_ros.tools.cli import CliError
     try:
         return bag_topics(bag)

@@ -48,7 +48,7 @@ class SilhouetteReport:
 
 def model_shape(estimate: Path, body: Body) -> ModelShape:
     """The body the tracker used: from its first /memo/markers (one cylinder per part), else ``body``."""
-    from memo_ros.tools.bagio import bag_topics, read_messages
+    from memo_ros.ros.bagio import bag_topics, read_messages
     if MARKERS_TOPIC in bag_topics(estimate):
         messages = read_messages(estimate, [MARKERS_TOPIC])
         try:
@@ -65,7 +65,7 @@ def model_shape(estimate: Path, body: Body) -> ModelShape:
 
 def frame_outcomes(estimate: Path) -> dict[int, str]:
     """Stamp -> outcome of every frame the tracker reported done on /memo/processed."""
-    from memo_ros.tools.bagio import bag_topics, read_messages, stamp_to_ns
+    from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
     if PROCESSED_TOPIC not in bag_topics(estimate):
         return {}
     return {stamp_to_ns(m.message.stamp): m.message.frame_id for m in read_messages(estimate, [PROCESSED_TOPIC])}
@@ -73,7 +73,7 @@ def frame_outcomes(estimate: Path) -> dict[int, str]:
 
 def _camera_images(images: Path, camera: str, colour: bool) -> list[tuple[int, np.ndarray]]:
     """(stamp, image) of a camera's image_raw in the bag, in order."""
-    from memo_ros.tools.bagio import read_messages, stamp_to_ns
+    from memo_ros.ros.bagio import read_messages, stamp_to_ns
     decode = image_message_to_frame if colour else image_message_to_grey
     return [(stamp_to_ns(m.message.header.stamp), decode(m.message))
             for m in read_messages(images, [f'/{camera}/image_raw'])]
@@ -89,7 +89,7 @@ def evaluate_silhouettes(images: Path, estimate, outcomes: dict[int, str], studi
                          keep_frames: int = 4) -> SilhouetteReport:
     """Segment every camera's images as the contour nodes did and compare with the rendered estimate."""
     from memo_ros.nodes.contour_node import PARAMS, pipeline_settings, recording_background
-    from memo_ros.tools.bagio import tracked_bodies
+    from memo_ros.ros.bagio import tracked_bodies
     params = {q.name: q.default for q in PARAMS} | dict(studio.node_parameters.get('contour_node', {}))
     settings = pipeline_settings(params)
     colour = settings.segmenter == 'sequence'

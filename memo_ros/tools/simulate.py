@@ -21,7 +21,7 @@ from memo_ros.core.render import render
 from memo_ros.core.rotations import matrix_to_quat
 from memo_ros.core.scenarios import SCENARIOS, Scenario, make_scenario
 from memo_ros.core.studio import Studio
-from memo_ros.tools.bagio import BagWriter, camera_info_msg, image_msg, joint_state_msg, pose_array_msg
+from memo_ros.ros.bagio import BagWriter, camera_info_msg, image_msg, joint_state_msg, pose_array_msg
 from memo_ros.tools.progress import Progress
 
 START_NS = 1_767_225_600 * 1_000_000_000     # 2026-01-01T00:00:00Z: fixed, so runs are reproducible

@@ -27,7 +27,7 @@ def write_walker_plots(directory: str | Path, estimate_bag: Path, truth, estimat
     """Write the walker's figures into ``directory``; return their paths."""
     import matplotlib
     matplotlib.use('Agg')
-    from memo_ros.tools.bagio import read_messages, stamp_to_ns
+    from memo_ros.ros.bagio import read_messages, stamp_to_ns
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     measured = {stamp_to_ns(m.message.header.stamp): dict(zip(m.message.name, m.message.position))
@@ -135,7 +135,7 @@ def _similarity_figure(path: Path, truth, estimate, body, studio, truth_bag: Pat
     from memo_ros.core.similarity import edge_table
     from memo_ros.core.walking_search import WalkerModel
     from memo_ros.nodes.contour_node import pipeline_settings
-    from memo_ros.tools.bagio import grey_images
+    from memo_ros.ros.bagio import grey_images
     camera = studio.cameras[0]
     stamps = sorted(s for s in estimate.joints if 'gait_phase' in estimate.joints[s])
     if not stamps:
