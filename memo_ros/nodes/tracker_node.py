@@ -13,12 +13,12 @@ from __future__ import annotations
 import sys
 import threading
 import time
+import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
@@ -111,11 +111,11 @@ def tracker_settings(p: dict) -> TrackerSettings:
 class TrackerNode(Node):
     """Joins contours and assignments per frame and runs the articulated EKF.
 
-    Messages are taken on their own thread (the intake callback group) while a frame is being tracked, so
-    the join always sees what has arrived and, when the update falls behind the cameras by more than
-    max_lag, skips ahead instead of letting the DDS queues overflow."""
-
-    executor_threads = 2
+    The executor (one thread) only takes messages, services and parameters; frames are tracked on a
+    thread of their own, so the join always sees what has arrived and, when the update falls behind the
+    cameras by more than max_lag, skips ahead instead of letting the DDS queues overflow.  (rclpy's
+    multi-threaded executor with a tracking callback group did the same, but left complete frames waiting
+    0.3 - 2 s for their turn: a paced replay ran at a fifth of its speed.)"""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('tracker_node', **kwargs)
@@ -130,8 +130,10 @@ class TrackerNode(Node):
         self.tracker = ArticulatedTracker(self.body, self.studio.cameras, tracker_settings(self.params), initial)
         self.body_silhouettes: list | None = [] if self.params['body_source'] == 'silhouettes' else None
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
-        # join state, shared by the intake thread and the tracking thread (under self.lock)
+        # join state and commands, shared by the executor and the tracking thread (under self.lock)
         self.lock = threading.Lock()
+        self.wake = threading.Condition(self.lock)
+        self.commands: list = []            # tracker changes asked for by services and parameters, in order
         self.pending: dict[int, PendingFrame] = {}
         self.last_processed_ns: int | None = None
         self.first_stamp_ns: int | None = None
@@ -140,16 +142,12 @@ class TrackerNode(Node):
         self.missed: dict[str, int] = {c: 0 for c in self.camera_names}   # joined frames in a row without it
         self.late_stamps: dict[int, None] = {}      # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
-        self.reset_tracker = False
         # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten
         reliable = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100)
-        intake = MutuallyExclusiveCallbackGroup()
         for cam in self.camera_names:
-            self.create_subscription(PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable,
-                                     callback_group=intake)
-        self.create_subscription(DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable,
-                                 callback_group=intake)
-        # the tracker itself is touched only from the default group: set_pose, reset, parameters, the tick
+            self.create_subscription(PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable)
+        self.create_subscription(DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable)
+        # the tracker itself is touched only by the tracking thread: set_pose, reset and parameters queue commands
         self.create_subscription(JointState, '~/set_pose', self._on_set_pose, reliable)
         self.pub_joints = self.create_publisher(JointState, '/memo/joint_states', 10)
         self.pub_poses = self.create_publisher(PoseArray, '/memo/body_poses', 10)
@@ -157,38 +155,66 @@ class TrackerNode(Node):
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, 100)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        # a frame is tracked as soon as the intake completes it (the guard condition), or when its wait expires
-        self.wake = self.create_guard_condition(self._tick)
-        self.create_timer(EXPIRY_CHECK_S, self._tick)
         self.health.set('tracking_state', self.tracker.status)
         self.get_logger().info(f'tracking with cameras {", ".join(self.camera_names)}; '
                                f'initial pose: {"studio" if initial is not None else "from the silhouettes"}')
+        # a frame is tracked as soon as the intake completes it (notified), or when its wait expires
+        self.woken = False
+        self.stopping = False
+        self.failure: BaseException | None = None
+        self.worker = threading.Thread(target=self._work, name='tracking', daemon=True)
+        self.worker.start()
+
+    def destroy_node(self) -> None:
+        """Stop the tracking thread (it finishes its frame) before the node's entities go."""
+        with self.lock:
+            self.stopping = True
+            self.wake.notify()
+        self.worker.join(timeout=10.0)
+        super().destroy_node()
+
+    def _command(self, change) -> None:
+        """Have the tracking thread apply ``change`` (a callable) before its next frame."""
+        with self.lock:
+            self.commands.append(change)
+            self._notify()
+
+    def _notify(self) -> None:
+        """Wake the tracking thread (call under the lock)."""
+        self.woken = True
+        self.wake.notify()
 
     # ------------------------------------------------------------ parameters and services
     def _on_parameters_set(self) -> None:
-        self.tracker.apply_settings(tracker_settings(self.params))
+        settings = tracker_settings(self.params)
+        self._command(lambda: self.tracker.apply_settings(settings))
         self.health.note('reconfigured', 'parameters changed: tracker settings updated')
 
     def _on_reset(self, request, response):
-        self.tracker.reset()
         with self.lock:
             self.pending.clear()
+        self._command(lambda: self.tracker.reset())
         self.health.note('resets', 'reset requested: re-initialising on the next frame')
         response.success = True
         response.message = 'tracker reset; it re-initialises on the next frame with contours'
         return response
 
     def _on_set_pose(self, msg: JointState) -> None:
+        names, positions = list(msg.name), list(msg.position)
+        self._command(lambda: self._set_pose(names, positions))
+
+    def _set_pose(self, names: list[str], positions: list[float]) -> None:
+        """set_pose on the tracking thread: coordinates not named keep the current estimate's values."""
         try:
             base = self.tracker.ekf.q if self.tracker.status == TRACKING else None
-            q = coordinates_from_names(self.body, list(msg.name), list(msg.position), base)
+            q = coordinates_from_names(self.body, names, positions, base)
             self.tracker.set_pose(q)
         except (KeyError, ValueError) as exc:
             self.health.drop('bad_set_pose', f'set_pose refused: {exc}')
             return
         self.health.note('set_pose', 'pose set: the next frame starts from it')
 
-    # ------------------------------------------------------------ inputs (intake thread)
+    # ------------------------------------------------------------ inputs (executor thread)
     def _contour_callback(self, cam: str):
         def on_contours(msg: PointCloud2) -> None:
             self._on_contours(cam, msg)
@@ -206,7 +232,7 @@ class TrackerNode(Node):
                 self.newest_contours_ns.clear()
                 self.done_stamps.clear()
                 self.late_stamps.clear()
-                self.reset_tracker = True
+                self.commands.append(lambda: self.tracker.reset())
                 self.health.note('time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset')
             else:
                 self._late(stamp, what)
@@ -253,7 +279,7 @@ class TrackerNode(Node):
             frame.contours[cam] = table
             self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
             self.missed[cam] = 0
-        self.wake.trigger()
+            self._notify()
 
     def _on_assignment(self, msg: DiagnosticArray) -> None:
         self.health.count('assignments_in')
@@ -271,7 +297,7 @@ class TrackerNode(Node):
             frame = self._frame_for(stamp, 'assignment')
             if frame is not None:
                 frame.assignment = assignment
-        self.wake.trigger()
+                self._notify()
 
     # ------------------------------------------------------------ joining (under the lock)
     def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
@@ -333,14 +359,31 @@ class TrackerNode(Node):
         if len(self.done_stamps) > LATE_STAMPS_KEPT:
             del self.done_stamps[next(iter(self.done_stamps))]
 
-    # ------------------------------------------------------------ tracking (default group)
+    # ------------------------------------------------------------ tracking (its own thread)
+    def _work(self) -> None:
+        """The tracking thread: woken by the intake, and every EXPIRY_CHECK_S for joins whose wait expired.
+        An error here ends the node (spin is shut down, the process exits non-zero), as it would in a callback."""
+        try:
+            while True:
+                with self.lock:
+                    self.wake.wait_for(lambda: self.woken or self.stopping, EXPIRY_CHECK_S)
+                    if self.stopping:
+                        return
+                    self.woken = False
+                self._tick()
+        except Exception as exc:        # noqa: BLE001 - reported, then the node stops
+            self.failure = exc
+            self.get_logger().fatal(f'tracking thread failed: {exc!r}\n{traceback.format_exc()}')
+            self.context.try_shutdown()
+
     def _tick(self) -> None:
-        """Track every frame that is ready, one after the other."""
+        """Apply the queued commands, then track every frame that is ready, one after the other."""
         while True:
             with self.lock:
-                if self.reset_tracker:
-                    self.tracker.reset()
-                    self.reset_tracker = False
+                commands, self.commands = self.commands, []
+            for command in commands:
+                command()
+            with self.lock:
                 job = self._next_frame()
             if job is None:
                 return

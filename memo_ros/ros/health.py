@@ -5,6 +5,7 @@ a throttled one-line warning, so nothing is dropped silently.
 """
 from __future__ import annotations
 
+import threading
 from collections import Counter
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -14,7 +15,8 @@ LOG_THROTTLE_S = 2.0
 
 
 class NodeHealth:
-    """Counters, the last problem, and a periodic DiagnosticArray for one node."""
+    """Counters, the last problem, and a periodic DiagnosticArray for one node (safe to use from a node's
+    own threads as well as its callbacks)."""
 
     def __init__(self, node: Node, name: str, hardware_id: str = '', period: float = 1.0) -> None:
         self._node = node
@@ -25,25 +27,30 @@ class NodeHealth:
         self.values: dict[str, str] = {}
         self._problem = ''
         self._level = DiagnosticStatus.OK
+        self._lock = threading.Lock()
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._timer = node.create_timer(period, self.publish)
 
     def count(self, key: str, n: int = 1) -> None:
         """Add ``n`` to counter ``key`` (frames_in, processed, ...)."""
-        self.counters[key] += n
+        with self._lock:
+            self.counters[key] += n
 
     def drop(self, reason: str, message: str) -> None:
         """Count a frame not processed under ``reason`` and log ``message`` (throttled per reason)."""
-        self.dropped[reason] += 1
-        self._problem = f'{reason}: {message}'
-        self._level = DiagnosticStatus.WARN
-        self._node.get_logger().warning(f'{message} [dropped: {reason}, {self.dropped[reason]} so far]',
+        with self._lock:
+            self.dropped[reason] += 1
+            self._problem = f'{reason}: {message}'
+            self._level = DiagnosticStatus.WARN
+            count = self.dropped[reason]
+        self._node.get_logger().warning(f'{message} [dropped: {reason}, {count} so far]',
                                         throttle_duration_sec=LOG_THROTTLE_S)
 
     def note(self, reason: str, message: str) -> None:
         """Count an event that is not a drop (a reset, a warm-up) and log it throttled."""
-        self.counters[reason] += 1
-        self._problem = f'{reason}: {message}'
+        with self._lock:
+            self.counters[reason] += 1
+            self._problem = f'{reason}: {message}'
         self._node.get_logger().info(message, throttle_duration_sec=LOG_THROTTLE_S)
 
     def ok(self) -> None:
@@ -52,7 +59,8 @@ class NodeHealth:
 
     def set(self, key: str, value) -> None:
         """Publish ``key: value`` with the next diagnostics."""
-        self.values[key] = str(value)
+        with self._lock:
+            self.values[key] = str(value)
 
     def status(self) -> DiagnosticStatus:
         """The node's current DiagnosticStatus."""
@@ -60,13 +68,14 @@ class NodeHealth:
         status.level = self._level
         status.name = self._name
         status.hardware_id = self._hardware_id
-        status.message = 'OK' if self._level == DiagnosticStatus.OK else self._problem
-        values = [KeyValue(key=k, value=str(v)) for k, v in sorted(self.counters.items())]
-        values += [KeyValue(key=f'dropped.{k}', value=str(v)) for k, v in sorted(self.dropped.items())]
-        values.append(KeyValue(key='dropped.total', value=str(sum(self.dropped.values()))))
-        values += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]
-        if self._problem:
-            values.append(KeyValue(key='last_problem', value=self._problem))
+        with self._lock:
+            status.message = 'OK' if self._level == DiagnosticStatus.OK else self._problem
+            values = [KeyValue(key=k, value=str(v)) for k, v in sorted(self.counters.items())]
+            values += [KeyValue(key=f'dropped.{k}', value=str(v)) for k, v in sorted(self.dropped.items())]
+            values.append(KeyValue(key='dropped.total', value=str(sum(self.dropped.values()))))
+            values += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]
+            if self._problem:
+                values.append(KeyValue(key='last_problem', value=self._problem))
         status.values = values
         return status
 

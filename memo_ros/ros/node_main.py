@@ -7,15 +7,16 @@ from typing import Callable
 import cv2
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
-    """Spin the node ``make_node`` builds until Ctrl-C or shutdown; exit 2 with one line if it refuses to start.
+    """Spin the node ``make_node`` builds until Ctrl-C or shutdown; exit 2 with one line if it refuses to start,
+    1 if a thread of its own failed (it sets ``failure`` and shuts the context down).
 
-    A node class with ``executor_threads`` > 1 spins on a multi-threaded executor (its callback groups say
-    what may run in parallel)."""
+    One executor thread per node: rclpy's multi-threaded executor left ready callbacks waiting for up to
+    seconds on these 2-core machines; a node that must not block its intake runs its work on its own thread."""
     cv2.setNumThreads(1)            # one process per camera and stage share the cores (see memo_ros.nodes)
     rclpy.init(args=args if args is not None else sys.argv)
     try:
@@ -24,13 +25,15 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
         print(f'{name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
-    threads = getattr(node, 'executor_threads', 1)
-    executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
     try:
-        rclpy.spin(node, executor)
+        rclpy.spin(node, SingleThreadedExecutor())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+    failure = getattr(node, 'failure', None)
+    if failure is not None:
+        print(f'{name}: error: {" ".join(str(failure).split()) or type(failure).__name__}', file=sys.stderr)
+        return 1
     return 0
