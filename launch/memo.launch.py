@@ -33,7 +33,8 @@ def _graph(context):
         nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',
                           parameters=[path], output='screen'))
         nodes.append(Node(package='memo_ros', executable='tracker_node', name='tracker_node',
-                          parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path], output='screen'))
+                          parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path],
+                          output='screen'))
     if 'walker_node' in studio.node_parameters:
         nodes.append(Node(package='memo_ros', executable='walker_node', name='walker_node',
                           parameters=[path], output='screen'))

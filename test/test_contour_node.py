@@ -201,6 +201,7 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
     # t + 1 must not decide the tracked region; with roi_wait the image waits for them (at most roi_wait)
     from visualization_msgs.msg import MarkerArray
 
+    from memo_ros.core.motion import coordinates_from_names
     from memo_ros.core.studio import Studio
     from memo_ros.ros.body_messages import marker_array_message
     sim = simulate('studio-arm', tmp_path / 'arm', frames=4, width=160, height=120)
@@ -209,10 +210,8 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
     studio.save(tmp_path / 'studio.yaml')
     images = [m.message for m in read_messages(sim.bag, ['/cam_front/image_raw'])]
     body = studio.body
-    q = body.neutral()
-    for name, value in studio.initial_pose.items():
-        q[body.coordinate_index(name)] = value
-    rotations, origins = body.forward_kinematics(q)
+    rotations, origins = body.forward_kinematics(
+        coordinates_from_names(body, list(studio.initial_pose), list(studio.initial_pose.values())))
     process = ros_env.start_node('contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml')
     try:
         with ros_session('roi_wait_feeder', ros_env.domain_id) as (node, executor):

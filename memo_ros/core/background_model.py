@@ -27,9 +27,10 @@ visible still remains in it (nothing in one camera's pixels tells them
 apart), unless his place is known (``known_person``: a first pass's tracked
 body, projected): it is then never learnt from, and pixels that steps 1 and 3
 leave unseen (a ring around a person who moves all the time) take the median
-of the frames outside that body instead of an inpainted guess.  Live, :meth:`BackgroundModel.update` keeps learning wherever the
-caller says the person is not (outside his grown mask and the tracked body's
-projection), which removes such ghosts once he has moved away.
+of the frames outside that body instead of an inpainted guess.  Live,
+:meth:`BackgroundModel.update` keeps learning wherever the caller says the
+person is not (outside his grown mask and the tracked body's projection), which
+removes such ghosts once he has moved away.
 """
 from __future__ import annotations
 

@@ -258,7 +258,8 @@ def ray_part_hits(cameras: list[Camera], ray_camera: np.ndarray, directions: np.
     n_parts = len(lengths)
     centres = np.array([np.asarray(c.t_world_cam, float) for c in cameras])              # (K, 3)
     r_world_cam = np.array([np.asarray(c.R_world_cam, float) for c in cameras])          # (K, 3, 3)
-    box = _BOX_CORNERS * np.concatenate([semi_axes, lengths[:, None]], axis=1)[:, None]                  # (P, 8, 3) in the part frames
+    extents = np.concatenate([semi_axes, lengths[:, None]], axis=1)                        # (P, 3)
+    box = _BOX_CORNERS * extents[:, None]                                   # (P, 8, 3) in the part frames
     corners = np.matmul(box, rotations.transpose(0, 2, 1)) + origins[:, None]
     corners = (corners - centres[:, None, None]) @ r_world_cam[:, None]      # (K, P, 8, 3) in the camera frames
     depth = corners[..., 2]
