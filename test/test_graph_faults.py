@@ -28,7 +28,8 @@ from memo_ros.tools.simulate import simulate
 FRAMES = 450                # 15 s of studio-arm at 30 Hz (10 of them the empty studio)
 RATE = 0.5                  # bag play into a running graph at 15 frames/s (the corrupt-bag test)
 DETECTION_FRAMES = 75       # a dead contour_node is excluded within 75 frames (contours_timeout: 2 s wall)
-RESTART_FRAMES = 120        # a restarted process is back within 120 frames (its start and discovery: 4 - 7 s)
+RESTART_S = 10.0            # a restarted process is back within 10 s of its start (its start and discovery: 4 - 7 s;
+                            # wall time, not frames: a paced replay runs at 3 - 30 frames/s depending on the host)
 RECOVERY_FRAMES = 15        # a restarted tracker is back within this many frames of its first output
 
 
@@ -131,13 +132,15 @@ def _errors(arm, out: Path):
     return np.array([index[s] for s in errors.stamps_ns.tolist()]), errors.mpjpe_mm
 
 
-def _alive(out: Path, camera: str) -> dict[int, bool]:
-    """Per assignment stamp: whether the selector counted ``camera`` alive."""
-    alive = {}
+def _alive(out: Path, camera: str) -> tuple[dict[int, bool], dict[int, int]]:
+    """Per assignment stamp: whether the selector counted ``camera`` alive, and when it was recorded (wall ns)."""
+    alive, recorded = {}, {}
     for m in read_messages(out, ['/memo/camera_assignment']):
         a = assignment_from_message(m.message)
-        alive[stamp_to_ns(m.message.header.stamp)] = bool(a.alive[a.cameras.index(camera)])
-    return alive
+        stamp = stamp_to_ns(m.message.header.stamp)
+        alive[stamp] = bool(a.alive[a.cameras.index(camera)])
+        recorded[stamp] = m.log_time_ns
+    return alive, recorded
 
 
 def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_path):
@@ -150,7 +153,7 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
                                                                   lambda g: g.start('tracker')]})
     frames, mpjpe = _errors(arm, out)
     stamps = _frame_stamps(arm.bag)
-    alive = _alive(out, 'cam_top')
+    alive, recorded = _alive(out, 'cam_top')
     flags = [alive.get(s) for s in stamps]
     print(f'{len(frames)}/{len(stamps)} frames tracked, MPJPE mean {mpjpe.mean():.1f} mm; cam_top alive '
           f'{"".join("-" if f is None else "1" if f else "0" for f in flags)}')
@@ -159,7 +162,10 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
     outage = [k for k in range(kill_at + DETECTION_FRAMES, restart_at) if flags[k] is not None]
     assert outage and not any(flags[k] for k in outage), 'the assignment must show cam_top gone'
     back = [k for k in range(restart_at, tracker_at) if flags[k]]
-    assert back and back[0] <= restart_at + RESTART_FRAMES, 'cam_top must come back after its contour_node restarts'
+    assert back, 'cam_top must come back after its contour_node restarts'
+    back_s = (recorded[stamps[back[0]]] - graph.started_ns['cam_top']) * 1e-9
+    print(f'cam_top back in the assignment at frame {back[0]}, {back_s:.1f} s after its contour_node restarted')
+    assert back_s <= RESTART_S, f'cam_top must be back within {RESTART_S:g} s of its restart'
     assert all(flags[k] for k in range(back[0], len(stamps)) if flags[k] is not None)
     during = (frames >= kill_at) & (frames < back[0])
     print(f'before: MPJPE mean {mpjpe[frames < kill_at].mean():.1f} mm; outage: {during.sum()} of {back[0] - kill_at} '
@@ -168,14 +174,16 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
     assert mpjpe[during].mean() <= 35.0
     # the tracker: a new process re-initialises and is within 25 mm again after RECOVERY_FRAMES of its output
     index = {s: k for k, s in enumerate(stamps)}
-    new_outputs = [index[stamp_to_ns(m.message.header.stamp)] for m in read_messages(out, ['/memo/joint_states'])
-                   if m.log_time_ns > graph.started_ns['tracker']]         # recorded after the new process started
+    new_outputs = {index[stamp_to_ns(m.message.header.stamp)]: m.log_time_ns
+                   for m in read_messages(out, ['/memo/joint_states'])
+                   if m.log_time_ns > graph.started_ns['tracker']}         # recorded after the new process started
     assert new_outputs, 'the restarted tracker must publish'
     first = min(new_outputs)
-    assert first - tracker_at <= RESTART_FRAMES, 'the restarted tracker must be up within 120 frames'
+    up_s = (new_outputs[first] - graph.started_ns['tracker']) * 1e-9
+    assert up_s <= RESTART_S, f'the restarted tracker must be up within {RESTART_S:g} s (took {up_s:.1f} s)'
     settled = frames >= first + RECOVERY_FRAMES
     print(f'tracker restart: first output of the new process at frame {first} ({first - tracker_at} frames after '
-          f'the kill), MPJPE mean {mpjpe[settled].mean():.1f} mm from {RECOVERY_FRAMES} frames later')
+          f'the kill, {up_s:.1f} s after its start), MPJPE mean {mpjpe[settled].mean():.1f} mm from {RECOVERY_FRAMES} frames later')
     assert settled.sum() >= 0.8 * (len(stamps) - first - RECOVERY_FRAMES)
     assert mpjpe[settled].mean() <= 25.0
 
