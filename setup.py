@@ -1,6 +1,7 @@
 """ament_python package memo_ros; also pip-installable on a machine without ROS."""
-import os
+
 from glob import glob
+import os
 
 from setuptools import find_packages, setup
 
@@ -35,7 +36,7 @@ setup(
     package_data={package_name: ['config/*']},
     include_package_data=False,
     install_requires=install_requires,
-    extras_require={'test': ['pytest>=8']},
+    extras_require={'test': ['pytest>=8', 'ruff>=0.17', 'mypy>=2.4']},
     zip_safe=True,
     maintainer='memo_ros developers',
     maintainer_email='memo_ros@example.org',

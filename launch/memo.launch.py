@@ -7,48 +7,103 @@ every node gets it as its params file, as ``memo-ros launch`` does without ROS.
 ``role`` splits the graph over hosts: cameras (the contour nodes), tracking (the
 selector and the tracker, or the walker), all (default).
 """
-from launch import LaunchDescription
+
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from launch import LaunchDescription
+
 
 def _graph(context):
-    from memo_ros.core.studio import load_studio, studio_path
-    from memo_ros.tools.launch import REPLAY_IMAGE_QUEUE, REPLAY_JOIN_TIMEOUT, REPLAY_ROI_WAIT, ROLES
+    from memo_ros.core.formats.studio import load_studio, studio_path
+    from memo_ros.tools.launch import (
+        REPLAY_IMAGE_QUEUE,
+        REPLAY_JOIN_TIMEOUT,
+        REPLAY_ROI_WAIT,
+        ROLES,
+    )
+
     path = str(studio_path(LaunchConfiguration('studio').perform(context)).resolve())
     reliable = LaunchConfiguration('reliable_images').perform(context).lower() in ('true', '1')
     role = LaunchConfiguration('role').perform(context)
     if role not in ROLES:
         raise ValueError(f'role must be one of {", ".join(ROLES)}, not {role!r}')
     studio = load_studio(path)
-    nodes = [Node(package='memo_ros', executable='contour_node', name='contour_node', namespace=camera,
-                  parameters=[path, {'reliable_images': True, 'image_queue_depth': REPLAY_IMAGE_QUEUE,
-                                     'roi_wait': REPLAY_ROI_WAIT} if reliable else {}],
-                  output='screen')
-             for camera in studio.camera_names if role != 'tracking']
+    nodes = [
+        Node(
+            package='memo_ros',
+            executable='contour_node',
+            name='contour_node',
+            namespace=camera,
+            parameters=[
+                path,
+                {
+                    'reliable_images': True,
+                    'image_queue_depth': REPLAY_IMAGE_QUEUE,
+                    'roi_wait': REPLAY_ROI_WAIT,
+                }
+                if reliable
+                else {},
+            ],
+            output='screen',
+        )
+        for camera in studio.camera_names
+        if role != 'tracking'
+    ]
     if role == 'cameras':
         return nodes
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
-        nodes.append(Node(package='memo_ros', executable='selector_node', name='selector_node',
-                          parameters=[path], output='screen'))
-        nodes.append(Node(package='memo_ros', executable='tracker_node', name='tracker_node',
-                          parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path],
-                          output='screen'))
+        nodes.append(
+            Node(
+                package='memo_ros',
+                executable='selector_node',
+                name='selector_node',
+                parameters=[path],
+                output='screen',
+            )
+        )
+        nodes.append(
+            Node(
+                package='memo_ros',
+                executable='tracker_node',
+                name='tracker_node',
+                parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path],
+                output='screen',
+            )
+        )
     if 'walker_node' in studio.node_parameters:
-        nodes.append(Node(package='memo_ros', executable='walker_node', name='walker_node',
-                          parameters=[path], output='screen'))
+        nodes.append(
+            Node(
+                package='memo_ros',
+                executable='walker_node',
+                name='walker_node',
+                parameters=[path],
+                output='screen',
+            )
+        )
     return nodes
 
 
 def generate_launch_description():
-    return LaunchDescription([
-        DeclareLaunchArgument('studio', default_value='studio_orthogonal',
-                              description='studio YAML: a path, or a shipped studio name'),
-        DeclareLaunchArgument('reliable_images', default_value='false',
-                              description='bag replay: subscribe images reliably instead of best effort, and let '
-                                          'the tracker wait 3 s for a frame\'s contours'),
-        DeclareLaunchArgument('role', default_value='all',
-                              description='what this host runs: all, cameras (contour nodes) or tracking'),
-        OpaqueFunction(function=_graph),
-    ])
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                'studio',
+                default_value='studio_orthogonal',
+                description='studio YAML: a path, or a shipped studio name',
+            ),
+            DeclareLaunchArgument(
+                'reliable_images',
+                default_value='false',
+                description='bag replay: subscribe images reliably instead of best effort, and let '
+                "the tracker wait 3 s for a frame's contours",
+            ),
+            DeclareLaunchArgument(
+                'role',
+                default_value='all',
+                description='what this host runs: all, cameras (contour nodes) or tracking',
+            ),
+            OpaqueFunction(function=_graph),
+        ]
+    )

@@ -1,8 +1,9 @@
 """Where the package's shipped files (config/) are, installed or in a checkout."""
+
 from __future__ import annotations
 
-import sys
 from pathlib import Path
+import sys
 
 PACKAGE = 'memo_ros'
 
@@ -11,6 +12,7 @@ def share_dir() -> Path:
     """The package's share directory: ament index, then the venv prefix, then the checkout."""
     try:
         from ament_index_python.packages import get_package_share_directory
+
         path = Path(get_package_share_directory(PACKAGE))
         if (path / 'config').is_dir():
             return path

@@ -59,7 +59,7 @@ fi
 # node parameters for a real recording, written into the imported studio file
 .venv/bin/python - "$BAG.yaml" "$(realpath "$BAG")" "$SCALE" <<'PY'
 import sys
-from memo_ros.core.studio import Studio
+from memo_ros.core.formats.studio import Studio
 path, bag, scale = sys.argv[1], sys.argv[2], float(sys.argv[3])
 studio = Studio.load(path)
 px = scale / 0.25                       # pixel sizes below are for the 0.25 scale (270 x 480 images)
@@ -77,7 +77,7 @@ echo
 echo "pass 2: background learnt without the body pass 1 tracked"
 .venv/bin/python - "$BAG.yaml" "$(realpath "$BAG.pass1")" "$SCALE" <<'PY'
 import sys
-from memo_ros.core.studio import Studio
+from memo_ros.core.formats.studio import Studio
 path, track, scale = sys.argv[1], sys.argv[2], float(sys.argv[3])
 studio = Studio.load(path)
 studio.node_parameters['contour_node'].update(background_track=track, background_track_margin=4.0 * scale / 0.25)

@@ -1,11 +1,12 @@
 """Shared fixtures: an isolated DDS environment per test and a runner for `memo-ros` in subprocesses."""
+
 from __future__ import annotations
 
 import itertools
 import os
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -26,7 +27,9 @@ class RosEnv(dict):
         self.domain_id = domain_id
         self['ROS_DOMAIN_ID'] = str(domain_id)
         self['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-        self['PYTHONPATH'] = os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p])
+        self['PYTHONPATH'] = os.pathsep.join(
+            [str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p]
+        )
         self['PYTHONUNBUFFERED'] = '1'
         self.processes: list[subprocess.Popen] = []
 
@@ -35,15 +38,27 @@ class RosEnv(dict):
 
     def start(self, *args) -> subprocess.Popen:
         """Start `memo-ros ARGS` in the background (stdout and stderr captured as text)."""
-        process = subprocess.Popen(self.command(*args), env=self, cwd=ROOT, text=True,
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        process = subprocess.Popen(
+            self.command(*args),
+            env=self,
+            cwd=ROOT,
+            text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
         self.processes.append(process)
         return process
 
     def start_node(self, node: str, *ros_args: str) -> subprocess.Popen:
         """Start ``python -m memo_ros.nodes.NODE --ros-args ROS_ARGS`` (stdout and stderr merged, as text)."""
-        process = subprocess.Popen([sys.executable, '-m', f'memo_ros.nodes.{node}', '--ros-args', *map(str, ros_args)],
-                                   env=self, cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(
+            [sys.executable, '-m', f'memo_ros.nodes.{node}', '--ros-args', *map(str, ros_args)],
+            env=self,
+            cwd=ROOT,
+            text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
         self.processes.append(process)
         return process
 
@@ -55,14 +70,16 @@ class RosEnv(dict):
         except subprocess.TimeoutExpired:
             process.kill()
             out, err = process.communicate()
-            pytest.fail(f'memo-ros {" ".join(map(str, args))} did not finish in {timeout} s:\n{err}')
+            pytest.fail(
+                f'memo-ros {" ".join(map(str, args))} did not finish in {timeout} s:\n{err}'
+            )
         return subprocess.CompletedProcess(process.args, process.returncode, out, err)
 
     def kill_all(self) -> None:
         for process in self.processes:
             if process.poll() is None:
                 process.kill()
-            if not (process.stdout and process.stdout.closed):       # not collected by the test already
+            if not (process.stdout and process.stdout.closed):  # not collected by the test already
                 process.communicate()
 
 

@@ -1,4 +1,5 @@
 """`memo-ros bag info|play|record`: a bag played over DDS and recorded again keeps every byte."""
+
 from __future__ import annotations
 
 import threading
@@ -11,9 +12,11 @@ from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from memo_ros.ros.bagio import BagError
 from memo_ros.ros.messages import import_message_type
 from memo_ros.ros.pointcloud import CONTOUR_DTYPE, pointcloud_to_array
-from memo_ros.tools.bag import BagError, BagPlayer, PlayOptions, bag_summary
+from memo_ros.tools.bag.info import bag_summary
+from memo_ros.tools.bag.play import BagPlayer, PlayOptions
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types
@@ -34,24 +37,47 @@ def _header(stamp_ns: int, frame_id: str):
 
 def _image(stamp_ns: int, seed: int):
     pixels = np.random.default_rng(seed).integers(0, 256, (6, 8), dtype=np.uint8)
-    return T['sensor_msgs/msg/Image'](header=_header(stamp_ns, 'cam'), height=6, width=8, encoding='mono8',
-                                      is_bigendian=0, step=8, data=pixels.reshape(-1))
+    return T['sensor_msgs/msg/Image'](
+        header=_header(stamp_ns, 'cam'),
+        height=6,
+        width=8,
+        encoding='mono8',
+        is_bigendian=0,
+        step=8,
+        data=pixels.reshape(-1),
+    )
 
 
 def _camera_info(stamp_ns: int):
-    roi = T['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    roi = T['sensor_msgs/msg/RegionOfInterest'](
+        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+    )
     k = np.array([500.0, 0, 4, 0, 500.0, 3, 0, 0, 1])
     p = np.array([500.0, 0, 4, 0, 0, 500.0, 3, 0, 0, 0, 1, 0])
     return T['sensor_msgs/msg/CameraInfo'](
-        header=_header(stamp_ns, 'cam'), height=6, width=8, distortion_model='plumb_bob',
-        d=np.zeros(5), k=k, r=np.eye(3).reshape(-1), p=p, binning_x=0, binning_y=0, roi=roi)
+        header=_header(stamp_ns, 'cam'),
+        height=6,
+        width=8,
+        distortion_model='plumb_bob',
+        d=np.zeros(5),
+        k=k,
+        r=np.eye(3).reshape(-1),
+        p=p,
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
 
 
 def _joint_state(stamp_ns: int, knee: float):
     # empty velocity: the case where rclpy's serialize_message pads and rosbags refuses the bytes
     return T['sensor_msgs/msg/JointState'](
-        header=_header(stamp_ns, 'world'), name=['root_tx', 'knee_l'], position=np.array([0.5, knee]),
-        velocity=np.zeros(0), effort=np.zeros(0))
+        header=_header(stamp_ns, 'world'),
+        name=['root_tx', 'knee_l'],
+        position=np.array([0.5, knee]),
+        velocity=np.zeros(0),
+        effort=np.zeros(0),
+    )
 
 
 def _contours(stamp_ns: int):
@@ -59,12 +85,23 @@ def _contours(stamp_ns: int):
     points['x'], points['y'] = np.arange(5) * 2.5, 7.0
     points['tx'], points['ty'], points['contour'] = 1.0, 0.0, [0, 0, 1, 1, 1]
     field = T['sensor_msgs/msg/PointField']
-    fields = [field(name=n, offset=CONTOUR_DTYPE.fields[n][1], datatype=7 if n != 'contour' else 6, count=1)
-              for n in CONTOUR_DTYPE.names]
+    fields = [
+        field(
+            name=n, offset=CONTOUR_DTYPE.fields[n][1], datatype=7 if n != 'contour' else 6, count=1
+        )
+        for n in CONTOUR_DTYPE.names
+    ]
     return T['sensor_msgs/msg/PointCloud2'](
-        header=_header(stamp_ns, 'cam'), height=1, width=5, fields=fields, is_bigendian=False,
-        point_step=CONTOUR_DTYPE.itemsize, row_step=5 * CONTOUR_DTYPE.itemsize,
-        data=points.view(np.uint8).copy(), is_dense=True)
+        header=_header(stamp_ns, 'cam'),
+        height=1,
+        width=5,
+        fields=fields,
+        is_bigendian=False,
+        point_step=CONTOUR_DTYPE.itemsize,
+        row_step=5 * CONTOUR_DTYPE.itemsize,
+        data=points.view(np.uint8).copy(),
+        is_dense=True,
+    )
 
 
 def write_test_bag(path, storage=StoragePlugin.MCAP) -> dict[str, list[bytes]]:
@@ -76,7 +113,9 @@ def write_test_bag(path, storage=StoragePlugin.MCAP) -> dict[str, list[bytes]]:
     messages.append(('/cam/contours', _contours(START_NS + STEP_NS)))
     expected: dict[str, list[bytes]] = {topic: [] for topic in TOPICS}
     with Writer(path, version=9, storage_plugin=storage) as writer:
-        conns = {t: writer.add_connection(t, msgtype, typestore=TS) for t, msgtype in TOPICS.items()}
+        conns = {
+            t: writer.add_connection(t, msgtype, typestore=TS) for t, msgtype in TOPICS.items()
+        }
         for index, (topic, msg) in enumerate(messages):
             data = bytes(TS.serialize_cdr(msg, TOPICS[topic]))
             writer.write(conns[topic], START_NS + index * STEP_NS, data)
@@ -105,7 +144,9 @@ def test_play_and_record_keep_every_byte(ros_env, test_bag, tmp_path):
     bag, expected = test_bag
     out = tmp_path / 'out'
     total = sum(len(v) for v in expected.values())
-    recorder = ros_env.start('bag', 'record', '-o', out, *TOPICS, '--max-messages', total, '--duration', 25)
+    recorder = ros_env.start(
+        'bag', 'record', '-o', out, *TOPICS, '--max-messages', total, '--duration', 25
+    )
     played = ros_env.run('bag', 'play', bag, '--wait-for-subscribers', 1, '--wait-timeout', 20)
     assert played.returncode == 0, played.stderr
     _, rec_err = recorder.communicate(timeout=25)
@@ -120,12 +161,16 @@ def test_play_and_record_keep_every_byte(ros_env, test_bag, tmp_path):
         # (a real `ros2 bag record` stores them so too); everything else is the played bytes
         assert got[topic] == [p + bytes(-len(p) % 4) for p in payloads], topic
         for raw in got[topic]:
-            TS.deserialize_cdr(raw, TOPICS[topic])     # strict: no trailing padding
+            TS.deserialize_cdr(raw, TOPICS[topic])  # strict: no trailing padding
             deserialize_message(raw, import_message_type(TOPICS[topic]))
-    joints = deserialize_message(got['/memo/joint_states'][2], import_message_type(TOPICS['/memo/joint_states']))
+    joints = deserialize_message(
+        got['/memo/joint_states'][2], import_message_type(TOPICS['/memo/joint_states'])
+    )
     assert list(joints.name) == ['root_tx', 'knee_l'] and list(joints.velocity) == []
     assert joints.position[1] == pytest.approx(0.2)
-    cloud = deserialize_message(got['/cam/contours'][0], import_message_type(TOPICS['/cam/contours']))
+    cloud = deserialize_message(
+        got['/cam/contours'][0], import_message_type(TOPICS['/cam/contours'])
+    )
     assert pointcloud_to_array(cloud)['contour'].tolist() == [0, 0, 1, 1, 1]
 
     info = ros_env.run('bag', 'info', out)
@@ -137,7 +182,9 @@ def test_info_counts_types_and_span(ros_env, test_bag):
     result = ros_env.run('bag', 'info', bag)
     assert result.returncode == 0, result.stderr
     assert 'Messages:          8' in result.stdout
-    assert 'Start:             2026-01-01T00:00:00.000000000Z (1767225600.000000000)' in result.stdout
+    assert (
+        'Start:             2026-01-01T00:00:00.000000000Z (1767225600.000000000)' in result.stdout
+    )
     assert 'Duration:          0.140000000 s' in result.stdout
     for topic, msgtype in TOPICS.items():
         line = next(line for line in result.stdout.splitlines() if topic + ' ' in line)
@@ -152,9 +199,11 @@ def test_info_reads_sqlite3_bags(tmp_path):
 
 
 def test_errors_are_one_line(ros_env):
-    cases = [(('info', '/no/such/bag'), 'no bag at /no/such/bag'),
-             (('info', '.'), 'not a rosbag2 directory'),
-             (('play', '/no/such/bag'), 'no bag at /no/such/bag')]
+    cases = [
+        (('info', '/no/such/bag'), 'no bag at /no/such/bag'),
+        (('info', '.'), 'not a rosbag2 directory'),
+        (('play', '/no/such/bag'), 'no bag at /no/such/bag'),
+    ]
     processes = [(ros_env.start('bag', *args), message) for args, message in cases]
     for process, message in processes:
         _, stderr = process.communicate(timeout=30)
@@ -164,16 +213,25 @@ def test_errors_are_one_line(ros_env):
 
 def test_play_and_record_refuse_bad_requests(ros_env, test_bag):
     bag, _ = test_bag
-    tf_bag = bag.parent / 'tf'       # tf2_msgs is in the Jazzy typestore but not installed here
+    tf_bag = bag.parent / 'tf'  # tf2_msgs is in the Jazzy typestore but not installed here
     with Writer(tf_bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conn = writer.add_connection('/tf', 'tf2_msgs/msg/TFMessage', typestore=TS)
-        writer.write(conn, START_NS, bytes(TS.serialize_cdr(T['tf2_msgs/msg/TFMessage'](transforms=[]),
-                                                            'tf2_msgs/msg/TFMessage')))
-    cases = [(('play', tf_bag), "cannot play /tf: unknown message type 'tf2_msgs/msg/TFMessage'"),
-             (('play', bag, '--topics', '/nope'), 'not in the bag: /nope'),
-             (('play', bag, '--remap', 'nonsense'), 'bad remap'),
-             (('record', '-o', bag, '/x'), 'exists already'),
-             (('record', '-o', bag.parent / 'new'), 'name the topics')]
+        writer.write(
+            conn,
+            START_NS,
+            bytes(
+                TS.serialize_cdr(
+                    T['tf2_msgs/msg/TFMessage'](transforms=[]), 'tf2_msgs/msg/TFMessage'
+                )
+            ),
+        )
+    cases = [
+        (('play', tf_bag), "cannot play /tf: unknown message type 'tf2_msgs/msg/TFMessage'"),
+        (('play', bag, '--topics', '/nope'), 'not in the bag: /nope'),
+        (('play', bag, '--remap', 'nonsense'), 'bad remap'),
+        (('record', '-o', bag, '/x'), 'exists already'),
+        (('record', '-o', bag.parent / 'new'), 'name the topics'),
+    ]
     processes = [(ros_env.start('bag', *args), message) for args, message in cases]
     for process, message in processes:
         _, stderr = process.communicate(timeout=30)
@@ -183,7 +241,9 @@ def test_play_and_record_refuse_bad_requests(ros_env, test_bag):
 
 def test_unreadable_bag_is_a_clear_error(tmp_path):
     (tmp_path / 'broken').mkdir()
-    (tmp_path / 'broken' / 'metadata.yaml').write_text('rosbag2_bagfile_information: {version: 9}\n')
+    (tmp_path / 'broken' / 'metadata.yaml').write_text(
+        'rosbag2_bagfile_information: {version: 9}\n'
+    )
     with pytest.raises(BagError, match='cannot read bag'):
         bag_summary(tmp_path / 'broken')
 
@@ -197,16 +257,29 @@ def test_player_offset_topics_remap_and_hooks(ros_env, test_bag):
     executor.add_node(node)
     try:
         seen = []
-        options = PlayOptions(rate=0.0, start_offset=0.05, topics=['/cam/image_raw', 'memo/joint_states'],
-                              remap={'/cam/image_raw': '/other/image'})
+        options = PlayOptions(
+            rate=0.0,
+            start_offset=0.05,
+            topics=['/cam/image_raw', 'memo/joint_states'],
+            remap={'/cam/image_raw': '/other/image'},
+        )
         with BagPlayer(node, bag, options, before_publish=seen.append) as player:
-            assert player.topics == {'/other/image': TOPICS['/cam/image_raw'],
-                                     '/memo/joint_states': TOPICS['/memo/joint_states']}
+            assert player.topics == {
+                '/other/image': TOPICS['/cam/image_raw'],
+                '/memo/joint_states': TOPICS['/memo/joint_states'],
+            }
             assert player.play(threading.Event()) == len(seen)
         # log times are START + index * STEP: the offset skips the first three messages of the bag
         assert [m.log_time_ns for m in seen] == [START_NS + i * STEP_NS for i in range(3, 7)]
-        assert [m.topic for m in seen] == ['/other/image', '/memo/joint_states', '/other/image', '/memo/joint_states']
-        assert [m.data for m in seen if m.bag_topic == '/cam/image_raw'] == expected['/cam/image_raw'][1:]
+        assert [m.topic for m in seen] == [
+            '/other/image',
+            '/memo/joint_states',
+            '/other/image',
+            '/memo/joint_states',
+        ]
+        assert [m.data for m in seen if m.bag_topic == '/cam/image_raw'] == expected[
+            '/cam/image_raw'
+        ][1:]
         with pytest.raises(BagError, match='rate must be positive'):
             BagPlayer(node, bag, PlayOptions(rate=-1.0))
     finally:

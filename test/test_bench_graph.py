@@ -1,45 +1,87 @@
 """`memo-ros benchmark graph` on a tiny bag: the report has every figure with sane values (no timing asserted)."""
+
 from __future__ import annotations
 
 import json
 
-from memo_ros.tools.bench_graph import FrameTrace, Restamper, drop_reason, header_stamp_ns, parse_rates, restamped
+from memo_ros.tools.benchmarks.graph import parse_rates
+from memo_ros.tools.benchmarks.graph_figures import drop_reason
+from memo_ros.tools.benchmarks.graph_probe import (
+    FrameTrace,
+    Restamper,
+    header_stamp_ns,
+    restamped,
+)
 from memo_ros.tools.simulate import simulate
 
-NODES = {'cam_front/contour_node', 'cam_side/contour_node', 'cam_top/contour_node', 'selector_node', 'tracker_node'}
+NODES = {
+    'cam_front/contour_node',
+    'cam_side/contour_node',
+    'cam_top/contour_node',
+    'selector_node',
+    'tracker_node',
+}
 
 
 def test_graph_benchmark_reports_every_stage_and_process(ros_env, tmp_path):
     sim = simulate('studio-arm', tmp_path / 'bag', frames=30, width=160, height=120)
     warmup = sim.empty_frames + 5
     out = tmp_path / 'report.json'
-    done = ros_env.run('benchmark', 'graph', '--bag', sim.bag, '--rates', '30', '--warmup', warmup, '--json',
-                       '--out', out, timeout=180)
+    done = ros_env.run(
+        'benchmark',
+        'graph',
+        '--bag',
+        sim.bag,
+        '--rates',
+        '30',
+        '--warmup',
+        warmup,
+        '--json',
+        '--out',
+        out,
+        timeout=180,
+    )
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)
     assert json.loads(out.read_text()) == report
-    assert report['domain_id'] == ros_env.domain_id and report['cameras'] == ['cam_front', 'cam_side', 'cam_top']
+    assert report['domain_id'] == ros_env.domain_id and report['cameras'] == [
+        'cam_front',
+        'cam_side',
+        'cam_top',
+    ]
     (r,) = report['rates']
     frames = sim.frames + sim.empty_frames
-    assert r['rate_hz'] == 30.0 and r['frames_published'] == frames and r['timed_frames'] == frames - warmup
-    assert r['messages_published'] == {f'/{c}/{t}': frames for c in report['cameras']
-                                       for t in ('camera_info', 'image_raw')}
+    assert (
+        r['rate_hz'] == 30.0
+        and r['frames_published'] == frames
+        and r['timed_frames'] == frames - warmup
+    )
+    assert r['messages_published'] == {
+        f'/{c}/{t}': frames for c in report['cameras'] for t in ('camera_info', 'image_raw')
+    }
     assert 0 < r['frames_out'] <= r['timed_frames']
     assert r['frames_dropped'] == r['timed_frames'] - r['frames_out'] == sum(r['drops'].values())
     assert 20.0 < r['input_fps'] < 40.0 and r['output_fps'] > 0
     for name in ('contours', 'assignment', 'joint_states', 'processed'):
         stats = r['latency_ms'][name]
-        assert stats is not None and 0 < stats['p50'] <= stats['p99'] <= stats['max'], (name, stats)
+        assert stats is not None and 0 < stats['p50'] <= stats['p99'] <= stats['max'], (
+            name,
+            stats,
+        )
     e2e = r['latency_ms']['joint_states']
     assert e2e['n'] == r['frames_out']
     assert r['stage_ms']['tracker_node']['p50'] > 0
     processes = {p['process']: p for p in r['processes']}
     assert NODES <= set(processes) and {'launcher', 'benchmark (player, probe)'} <= set(processes)
     for name in NODES:
-        assert processes[name]['cpu_pct'] > 0 and processes[name]['peak_rss_mb'] > 10, processes[name]
+        assert processes[name]['cpu_pct'] > 0 and processes[name]['peak_rss_mb'] > 10, processes[
+            name
+        ]
     assert set(r['nodes']) == NODES
     assert r['nodes']['tracker_node']['counters']['frames'] >= r['frames_out']
-    assert all(r['nodes'][f'{c}/contour_node']['images_lost_before_node'] >= 0 for c in report['cameras'])
+    assert all(
+        r['nodes'][f'{c}/contour_node']['images_lost_before_node'] >= 0 for c in report['cameras']
+    )
     assert r['target'] is not None and isinstance(r['target']['met'], bool)
 
 
@@ -72,4 +114,6 @@ def test_restamping_gives_a_frame_one_stamp_and_accounts_for_drops():
     assert drop_reason(FrameTrace(0, 1, joint_states=5), ['a']) is None
     assert drop_reason(FrameTrace(0, 1, processed=5, outcome='lost'), ['a']) == 'tracker: lost'
     assert drop_reason(FrameTrace(0, 1), ['a']).startswith('no contours nor assignment')
-    assert 'contours 1/2, assignment no' in drop_reason(FrameTrace(0, 1, contours={'a': 3}), ['a', 'b'])
+    assert 'contours 1/2, assignment no' in drop_reason(
+        FrameTrace(0, 1, contours={'a': 3}), ['a', 'b']
+    )

@@ -1,10 +1,11 @@
 """Forward kinematics, joint conventions and surface nodes of the body model."""
+
 import numpy as np
 import pytest
 
-from memo_ros.core.body import JOINT_NAMES, PART_NAMES, Body, load_default_body
-from memo_ros.core.rotations import rotvec_to_matrix
-from memo_ros.core.surface import body_surface, normal_variation
+from memo_ros.core.geometry.body import JOINT_NAMES, PART_NAMES, Body, load_default_body
+from memo_ros.core.geometry.rotations import rotvec_to_matrix
+from memo_ros.core.geometry.surface import body_surface, normal_variation
 
 
 @pytest.fixture(scope='module')
@@ -14,7 +15,14 @@ def body():
 
 def test_names_follow_the_design(body):
     assert len(PART_NAMES) == 14 and len(JOINT_NAMES) == 13
-    assert body.coordinate_names[:6] == ('root_tx', 'root_ty', 'root_tz', 'root_rx', 'root_ry', 'root_rz')
+    assert body.coordinate_names[:6] == (
+        'root_tx',
+        'root_ty',
+        'root_tz',
+        'root_rx',
+        'root_ry',
+        'root_rz',
+    )
     for name in body.coordinate_names[6:]:
         joint, axis = name.rsplit('_', 1)
         assert joint in JOINT_NAMES and axis in 'xyz'
@@ -31,7 +39,11 @@ def test_neutral_pose_stands_on_the_ground_at_the_shipped_height(body):
         assert rotations[PART_NAMES.index(part)][:, 2] == pytest.approx([0, 0, 1])
     assert rotations[PART_NAMES.index('foot_l')][:, 2] == pytest.approx([1, 0, 0])
     # left parts on +y (REP 103: the body faces +x)
-    assert origins[PART_NAMES.index('upper_arm_l'), 1] > 0 > origins[PART_NAMES.index('upper_arm_r'), 1]
+    assert (
+        origins[PART_NAMES.index('upper_arm_l'), 1]
+        > 0
+        > origins[PART_NAMES.index('upper_arm_r'), 1]
+    )
     assert ends[PART_NAMES.index('head'), 2] == pytest.approx(body.standing_height())
 
 
@@ -41,7 +53,7 @@ def test_children_start_where_parents_end(body):
     rotations, origins = body.forward_kinematics(q)
     ends = body.distal_ends(rotations, origins)
     for j in body.joints:
-        if body.joint_offsets[j.name][:2].any():      # shoulders and hips sit beside the torso axis
+        if body.joint_offsets[j.name][:2].any():  # shoulders and hips sit beside the torso axis
             continue
         assert np.allclose(origins[j.child], ends[j.parent], atol=1e-12), j.name
 
@@ -66,11 +78,12 @@ def test_joint_sign_conventions(body):
         q[body.coordinate_index(name)] = value
         r, o = body.forward_kinematics(q)
         return body.distal_ends(r, o)[PART_NAMES.index(part)] - o[PART_NAMES.index(part)]
-    assert tip('shoulder_r_y', 0.5, 'upper_arm_r')[0] > 0.1     # flexion swings the arm forward
-    assert tip('hip_l_y', 0.5, 'thigh_l')[0] > 0.1              # hip flexion: thigh forward
-    assert tip('ankle_l_y', 0.3, 'foot_l')[2] > 0.05            # dorsiflexion raises the toes
+
+    assert tip('shoulder_r_y', 0.5, 'upper_arm_r')[0] > 0.1  # flexion swings the arm forward
+    assert tip('hip_l_y', 0.5, 'thigh_l')[0] > 0.1  # hip flexion: thigh forward
+    assert tip('ankle_l_y', 0.3, 'foot_l')[2] > 0.05  # dorsiflexion raises the toes
     q = body.neutral()
-    q[body.coordinate_index('knee_l_y')] = -0.8                  # knee flexion is negative
+    q[body.coordinate_index('knee_l_y')] = -0.8  # knee flexion is negative
     r, o = body.forward_kinematics(q)
     shank = PART_NAMES.index('shank_l')
     assert (body.distal_ends(r, o)[shank] - o[shank])[0] < -0.1
@@ -87,7 +100,9 @@ def test_batched_kinematics_equal_single(body):
 
 def test_body_yaml_round_trip_and_errors(body, tmp_path):
     again = Body.from_dict(body.to_dict())
-    assert np.allclose(again.lengths, body.lengths) and np.allclose(again.semi_axes, body.semi_axes)
+    assert np.allclose(again.lengths, body.lengths) and np.allclose(
+        again.semi_axes, body.semi_axes
+    )
     data = body.to_dict()
     del data['parts']['head']
     with pytest.raises(ValueError, match='head'):

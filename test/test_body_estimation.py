@@ -1,13 +1,19 @@
 """Body dimensions from silhouettes: a known body rendered into a four-camera rig is measured back."""
+
 import numpy as np
 import pytest
 
-from memo_ros.core.body import load_default_body
-from memo_ros.core.body_estimation import estimate_body, measure_height, scaled_body, silhouette_from_contours
-from memo_ros.core.camera import Camera
-from memo_ros.core.contours import occluding_contours, silhouette_outlines
-from memo_ros.core.render import render_labels
-from memo_ros.core.rotations import matrix_to_rotvec, rot_z
+from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.camera import Camera
+from memo_ros.core.geometry.render import render_labels
+from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
+from memo_ros.core.multiview.body_estimation import (
+    estimate_body,
+    measure_height,
+    scaled_body,
+    silhouette_from_contours,
+)
+from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
 
 
 def rig() -> list[Camera]:
@@ -15,13 +21,18 @@ def rig() -> list[Camera]:
     cameras = []
     for k, azimuth in enumerate((0.4, 1.9, 3.6, 5.1)):
         eye = (3.5 * np.cos(azimuth), 3.5 * np.sin(azimuth), 1.9)
-        cameras.append(Camera.look_at(f'cam{k}', eye, (0.0, 0.0, 0.9), width=270, height=480, fx=420.0))
+        cameras.append(
+            Camera.look_at(f'cam{k}', eye, (0.0, 0.0, 0.9), width=270, height=480, fx=420.0)
+        )
     return cameras
 
 
 def silhouettes(body, q, cameras):
     rotations, origins = body.forward_kinematics(q)
-    return [render_labels(c, rotations, origins, body.semi_axes, body.lengths).label > 0 for c in cameras]
+    return [
+        render_labels(c, rotations, origins, body.semi_axes, body.lengths).label > 0
+        for c in cameras
+    ]
 
 
 def test_scaled_body_stands_as_tall_as_asked_and_keeps_the_proportions():
@@ -29,7 +40,9 @@ def test_scaled_body_stands_as_tall_as_asked_and_keeps_the_proportions():
     body = scaled_body(template, 1.62)
     assert body.standing_height() == pytest.approx(1.62, abs=1e-9)
     ratio = body.lengths / template.lengths
-    assert np.allclose(ratio, ratio[0]) and np.allclose(body.semi_axes / template.semi_axes, ratio[0])
+    assert np.allclose(ratio, ratio[0]) and np.allclose(
+        body.semi_axes / template.semi_axes, ratio[0]
+    )
     with pytest.raises(ValueError):
         scaled_body(template, 0.0)
 
@@ -39,7 +52,7 @@ def test_height_measured_from_four_silhouettes(height):
     cameras = rig()
     truth = scaled_body(load_default_body(), height)
     frames = []
-    for heading in (0.3, 1.2):                              # two frames, standing, turned
+    for heading in (0.3, 1.2):  # two frames, standing, turned
         q = truth.neutral()
         q[0:2] = (0.15, -0.1)
         q[3:6] = matrix_to_rotvec(rot_z(heading))
@@ -61,7 +74,7 @@ def test_height_takes_the_upright_frames_not_a_crouch():
     crouch[2] -= 0.25
     frames = [(cameras, silhouettes(truth, q, cameras)) for q in (upright, crouch, upright)]
     height, hulls = measure_height(frames)
-    assert min(h.top for h in hulls) < 1.6                     # the crouch is lower
+    assert min(h.top for h in hulls) < 1.6  # the crouch is lower
     assert height == pytest.approx(1.75, abs=0.035)
 
 

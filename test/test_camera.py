@@ -1,12 +1,22 @@
 """Camera model and rotation helpers (ROS-free, fast)."""
+
 import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from memo_ros.core.camera import Camera, perspective_jacobian
-from memo_ros.core.rotations import (axis_angle, hat, matrix_to_quat, matrix_to_rotvec, quat_to_matrix, rot_x,
-                                     rot_y, rot_z, rotvec_to_matrix)
+from memo_ros.core.geometry.camera import Camera, perspective_jacobian
+from memo_ros.core.geometry.rotations import (
+    axis_angle,
+    hat,
+    matrix_to_quat,
+    matrix_to_rotvec,
+    quat_to_matrix,
+    rot_x,
+    rot_y,
+    rot_z,
+    rotvec_to_matrix,
+)
 
 PLUMB_BOB = [-0.28, 0.09, 0.0012, -0.0007, -0.015]
 RATIONAL = [0.35, -0.12, 0.0009, -0.0011, 0.02, 0.62, -0.08, 0.03]
@@ -16,9 +26,20 @@ def make_camera(model='plumb_bob', skew=0.0, D=None) -> Camera:
     """A 640x480 camera about 4 m from the origin looking at it, slightly rolled."""
     if D is None:
         D = {'plumb_bob': PLUMB_BOB, 'rational_polynomial': RATIONAL, 'none': []}[model]
-    cam = Camera.look_at('cam', eye=(3.2, -2.1, 1.6), target=(0.1, 0.2, 0.9), width=640, height=480,
-                         fx=520.0, fy=515.0, cx=318.4, cy=243.7, D=D, distortion_model=model)
-    cam.R_world_cam = cam.R_world_cam @ rot_z(0.1)     # roll about the optical axis
+    cam = Camera.look_at(
+        'cam',
+        eye=(3.2, -2.1, 1.6),
+        target=(0.1, 0.2, 0.9),
+        width=640,
+        height=480,
+        fx=520.0,
+        fy=515.0,
+        cx=318.4,
+        cy=243.7,
+        D=D,
+        distortion_model=model,
+    )
+    cam.R_world_cam = cam.R_world_cam @ rot_z(0.1)  # roll about the optical axis
     cam.K[0, 1] = skew
     return cam
 
@@ -135,7 +156,9 @@ def test_camera_frame_jacobian_is_eq8_without_distortion():
     Pc = np.array([[0.3, -0.4, 2.5], [-1.0, 0.2, 4.0]])
     H = perspective_jacobian(Pc, f=600.0)
     x, y, z = Pc[0]
-    np.testing.assert_allclose(H[0], [[600 / z, 0, -x * 600 / z**2], [0, 600 / z, -y * 600 / z**2]])
+    np.testing.assert_allclose(
+        H[0], [[600 / z, 0, -x * 600 / z**2], [0, 600 / z, -y * 600 / z**2]]
+    )
     np.testing.assert_allclose(cam.projection_jacobian_camera(Pc), H)
     # eq. 9: world Jacobian = H R^-1
     _, J = cam.project_with_jacobian(cam.camera_to_world(Pc))
@@ -158,7 +181,7 @@ def test_pixel_rays_reproject_to_their_pixels(model, skew):
     rng = np.random.default_rng(4)
     u = rng.uniform(0, cam.width - 1, 400)
     v = rng.uniform(0, cam.height - 1, 400)
-    u[:4] = [0, cam.width - 1, 0, cam.width - 1]          # include the corners
+    u[:4] = [0, cam.width - 1, 0, cam.width - 1]  # include the corners
     v[:4] = [0, 0, cam.height - 1, cam.height - 1]
     rays = cam.pixel_rays(u, v)
     np.testing.assert_allclose(np.linalg.norm(rays, axis=-1), 1.0, atol=1e-12)
@@ -171,8 +194,15 @@ def test_pixel_rays_reproject_to_their_pixels(model, skew):
 def test_pixel_rays_match_opencv_without_skew():
     cam = make_camera('rational_polynomial')
     uv = np.array([[10.0, 20.0], [600.0, 400.0], [320.0, 240.0]])
-    ideal = cv2.undistortPoints(uv[:, None, :], cam.K, cam.coefficients, None, np.eye(3), np.eye(3),
-                                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)).reshape(-1, 2)
+    ideal = cv2.undistortPoints(
+        uv[:, None, :],
+        cam.K,
+        cam.coefficients,
+        None,
+        np.eye(3),
+        np.eye(3),
+        (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15),
+    ).reshape(-1, 2)
     d = cam.world_to_camera(cam.centre + cam.pixel_rays(uv[:, 0], uv[:, 1]))
     np.testing.assert_allclose(d[:, :2] / d[:, 2:], ideal, atol=1e-7)
 
@@ -185,8 +215,9 @@ def test_pixel_grid_rays_downscaled_and_cached():
     assert not rays.flags.writeable
     # pixel centre (u_s, v_s) of the small image is (u_s + 0.5) / s - 0.5 in the full image
     us, vs = 37, 101
-    np.testing.assert_allclose(rays[vs, us], cam.pixel_rays((us + 0.5) / 0.25 - 0.5, (vs + 0.5) / 0.25 - 0.5),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        rays[vs, us], cam.pixel_rays((us + 0.5) / 0.25 - 0.5, (vs + 0.5) / 0.25 - 0.5), atol=1e-12
+    )
     small = cam.scaled(0.25)
     uv = small.project(cam.centre + 2.0 * rays.reshape(-1, 3))
     grid = np.stack(np.meshgrid(np.arange(160.0), np.arange(120.0)), -1).reshape(-1, 2)
@@ -194,7 +225,7 @@ def test_pixel_grid_rays_downscaled_and_cached():
     full = cam.pixel_grid_rays()
     assert full.shape == (480, 640, 3)
     np.testing.assert_allclose(full[7, 11], cam.pixel_rays(11.0, 7.0), atol=1e-12)
-    cam.R_world_cam = cam.R_world_cam @ rot_y(0.2)                    # moving the camera invalidates the cache
+    cam.R_world_cam = cam.R_world_cam @ rot_y(0.2)  # moving the camera invalidates the cache
     assert not np.allclose(cam.pixel_grid_rays(0.25), rays)
 
 
@@ -206,7 +237,7 @@ def test_scaled_camera_half_pixel_convention(scale):
     np.testing.assert_array_equal(small.D, cam.D)
     P = points_in_view(cam, 100, seed=5)
     np.testing.assert_allclose(small.project(P), (cam.project(P) + 0.5) * scale - 0.5, atol=1e-9)
-    assert cam.K[0, 0] == 520.0       # original untouched
+    assert cam.K[0, 0] == 520.0  # original untouched
 
 
 def test_scale_must_be_positive():
@@ -216,27 +247,33 @@ def test_scale_must_be_positive():
 
 # ------------------------------------------------------------- construction
 def test_look_at_optical_frame():
-    cam = Camera.look_at('front', eye=(4.0, 0.0, 1.2), target=(0.0, 0.0, 1.2), width=640, height=480, fx=500.0)
+    cam = Camera.look_at(
+        'front', eye=(4.0, 0.0, 1.2), target=(0.0, 0.0, 1.2), width=640, height=480, fx=500.0
+    )
     R = cam.R_world_cam
     np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
     assert np.isclose(np.linalg.det(R), 1.0)
-    np.testing.assert_allclose(R[:, 2], [-1, 0, 0], atol=1e-12)       # looks along -x
-    np.testing.assert_allclose(R[:, 1], [0, 0, -1], atol=1e-12)       # image y is world down
-    np.testing.assert_allclose(R[:, 0], [0, 1, 0], atol=1e-12)        # image x is the camera's right
+    np.testing.assert_allclose(R[:, 2], [-1, 0, 0], atol=1e-12)  # looks along -x
+    np.testing.assert_allclose(R[:, 1], [0, 0, -1], atol=1e-12)  # image y is world down
+    np.testing.assert_allclose(R[:, 0], [0, 1, 0], atol=1e-12)  # image x is the camera's right
     np.testing.assert_allclose(cam.project([0.0, 0.0, 1.2]), [319.5, 239.5])
     head, foot = cam.project([[0.0, 0.0, 1.8], [0.0, 0.0, 0.0]])
-    assert head[1] < 239.5 < foot[1]                                   # up in the world is up in the image
-    right = cam.project([0.0, 0.5, 1.2])                               # +y world is the camera's right here
+    assert head[1] < 239.5 < foot[1]  # up in the world is up in the image
+    right = cam.project([0.0, 0.5, 1.2])  # +y world is the camera's right here
     assert right[0] > 319.5
     np.testing.assert_allclose(cam.centre, [4.0, 0.0, 1.2])
 
 
 def test_look_at_oblique_and_degenerate():
-    cam = Camera.look_at('c', eye=(2.0, -3.0, 2.5), target=(0.0, 0.0, 1.0), width=320, height=240, fx=300.0)
+    cam = Camera.look_at(
+        'c', eye=(2.0, -3.0, 2.5), target=(0.0, 0.0, 1.0), width=320, height=240, fx=300.0
+    )
     R = cam.R_world_cam
-    assert abs(R[2, 0]) < 1e-12                 # optical x stays horizontal (no roll)
-    assert R[2, 1] < 0                          # optical y has a downward component
-    top = Camera.look_at('top', eye=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), width=320, height=240, fx=300.0)
+    assert abs(R[2, 0]) < 1e-12  # optical x stays horizontal (no roll)
+    assert R[2, 1] < 0  # optical y has a downward component
+    top = Camera.look_at(
+        'top', eye=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), width=320, height=240, fx=300.0
+    )
     np.testing.assert_allclose(top.R_world_cam.T @ top.R_world_cam, np.eye(3), atol=1e-12)
     np.testing.assert_allclose(top.R_world_cam[:, 2], [0, 0, -1])
     with pytest.raises(ValueError):
@@ -266,7 +303,9 @@ def test_dict_yaml_safe():
     yaml = pytest.importorskip('yaml')
     cam = make_camera('rational_polynomial')
     back = Camera.from_dict(yaml.safe_load(yaml.safe_dump(cam.to_dict())))
-    np.testing.assert_allclose(back.project(points_in_view(cam, 10)), cam.project(points_in_view(cam, 10)))
+    np.testing.assert_allclose(
+        back.project(points_in_view(cam, 10)), cam.project(points_in_view(cam, 10))
+    )
 
 
 def test_camera_info_fields_round_trip():
@@ -276,9 +315,13 @@ def test_camera_info_fields_round_trip():
     assert info['r'] == [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
     assert info['p'] == [*info['k'][0:3], 0.0, *info['k'][3:6], 0.0, *info['k'][6:9], 0.0]
     assert info['frame_id'] == 'cam_optical_frame'
-    back = Camera.from_camera_info_fields(**info, R_world_cam=cam.R_world_cam, t_world_cam=cam.t_world_cam)
+    back = Camera.from_camera_info_fields(
+        **info, R_world_cam=cam.R_world_cam, t_world_cam=cam.t_world_cam
+    )
     assert back == cam
-    none = Camera.from_camera_info_fields(64, 48, '', [], [50.0, 0, 31.5, 0, 50.0, 23.5, 0, 0, 1], frame_id='x')
+    none = Camera.from_camera_info_fields(
+        64, 48, '', [], [50.0, 0, 31.5, 0, 50.0, 23.5, 0, 0, 1], frame_id='x'
+    )
     assert none.distortion_model == 'none' and none.name == 'x'
     with pytest.raises(ValueError):
         Camera.from_camera_info_fields(64, 48, 'plumb_bob', [], [0.0] * 9, [], [], 'uncalibrated')
@@ -290,26 +333,32 @@ def test_rotation_helpers_match_scipy():
     rv = rng.normal(size=(4, 5, 3))
     R = rotvec_to_matrix(rv)
     assert R.shape == (4, 5, 3, 3)
-    np.testing.assert_allclose(R.reshape(-1, 3, 3), Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(
+        R.reshape(-1, 3, 3), Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix(), atol=1e-12
+    )
     q = matrix_to_quat(R)
     assert q.shape == (4, 5, 4) and np.all(q[..., 3] >= 0)
     q_ref = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
     np.testing.assert_allclose(np.abs(q.reshape(-1, 4)), np.abs(q_ref), atol=1e-12)
     np.testing.assert_allclose(quat_to_matrix(q), R, atol=1e-12)
-    np.testing.assert_allclose(quat_to_matrix(-3.0 * q), R, atol=1e-12)        # sign and scale free
+    np.testing.assert_allclose(quat_to_matrix(-3.0 * q), R, atol=1e-12)  # sign and scale free
     back = matrix_to_rotvec(R)
     np.testing.assert_allclose(rotvec_to_matrix(back), R, atol=1e-12)
     assert np.all(np.linalg.norm(back, axis=-1) <= np.pi + 1e-12)
     for fn, axis in ((rot_x, 'x'), (rot_y, 'y'), (rot_z, 'z')):
         angles = rng.uniform(-np.pi, np.pi, (3, 2))
-        np.testing.assert_allclose(fn(angles).reshape(-1, 3, 3),
-                                   Rotation.from_euler(axis, angles.reshape(-1, 1)).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(
+            fn(angles).reshape(-1, 3, 3),
+            Rotation.from_euler(axis, angles.reshape(-1, 1)).as_matrix(),
+            atol=1e-12,
+        )
         assert fn(0.3).shape == (3, 3)
     axes = rng.normal(size=(7, 3))
     ang = rng.uniform(-3, 3, 7)
     unit = axes / np.linalg.norm(axes, axis=1, keepdims=True)
-    np.testing.assert_allclose(axis_angle(axes, ang), Rotation.from_rotvec(unit * ang[:, None]).as_matrix(),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        axis_angle(axes, ang), Rotation.from_rotvec(unit * ang[:, None]).as_matrix(), atol=1e-12
+    )
     a, b = rng.normal(size=(2, 3))
     np.testing.assert_allclose(hat(a) @ b, np.cross(a, b))
 
@@ -317,20 +366,24 @@ def test_rotation_helpers_match_scipy():
 def test_rotvec_stable_near_zero():
     for theta in (0.0, 1e-12, 1e-8, 1e-5, 9.9e-5, 1.01e-4, 1e-3):
         v = np.array([0.6, -0.8, 0.0]) * theta
-        np.testing.assert_allclose(rotvec_to_matrix(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-15)
+        np.testing.assert_allclose(
+            rotvec_to_matrix(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-15
+        )
     np.testing.assert_array_equal(rotvec_to_matrix(np.zeros(3)), np.eye(3))
     # derivative at 0 is the hat operator (finite differences stay well-behaved)
     h = 1e-7
     for k in range(3):
         e = np.zeros(3)
         e[k] = h
-        np.testing.assert_allclose((rotvec_to_matrix(e) - rotvec_to_matrix(-e)) / (2 * h), hat(np.eye(3)[k]),
-                                   atol=1e-8)
+        np.testing.assert_allclose(
+            (rotvec_to_matrix(e) - rotvec_to_matrix(-e)) / (2 * h), hat(np.eye(3)[k]), atol=1e-8
+        )
 
 
 def test_rotations_near_pi_round_trip():
     v = np.array([0.0, 0.0, np.pi - 1e-9])
-    np.testing.assert_allclose(rotvec_to_matrix(matrix_to_rotvec(rotvec_to_matrix(v))), rotvec_to_matrix(v),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        rotvec_to_matrix(matrix_to_rotvec(rotvec_to_matrix(v))), rotvec_to_matrix(v), atol=1e-9
+    )
     R = rot_x(np.pi)
     np.testing.assert_allclose(quat_to_matrix(matrix_to_quat(R)), R, atol=1e-12)

@@ -1,22 +1,24 @@
 """contour_node as its own process over real DDS: a bag played in, contours recorded out; bad input survived."""
+
 from __future__ import annotations
 
 import subprocess
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
+from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import pointcloud_to_array
-from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.tools.simulate import simulate
 
 
-
 def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
-    return ros_env.start_node('contour_node', '-r', f'__ns:=/{camera}', *[a for p in params for a in ('-p', p)])
+    return ros_env.start_node(
+        'contour_node', '-r', f'__ns:=/{camera}', *[a for p in params for a in ('-p', p)]
+    )
 
 
 def _wait_for_graph(ros_env, topics, timeout=20.0):
@@ -26,30 +28,60 @@ def _wait_for_graph(ros_env, topics, timeout=20.0):
         while not all(node.count_publishers(t) and node.count_subscribers(t) for t in topics):
             assert time.monotonic() < deadline, 'contour_node and recorder did not meet'
             time.sleep(0.2)
-        time.sleep(1.0)   # discovery seen by the probe; give the two peers a moment to match each other
+        time.sleep(
+            1.0
+        )  # discovery seen by the probe; give the two peers a moment to match each other
 
 
 def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
     bag = simulate('street-walk', tmp_path / 'street', frames=12, width=320, height=240).bag
     node = _start_node(ros_env, 'cam_street', 'reliable_images:=true', 'background_frames:=6')
     out = tmp_path / 'contours'
-    recorder = ros_env.start('bag', 'record', '-o', out, '/cam_street/contours', '/cam_street/person_box',
-                             '/cam_street/edges', '--idle-timeout', 4, '--duration', 60)
-    _wait_for_graph(ros_env, ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges'])
-    played = ros_env.run('bag', 'play', bag, '--topics', '/cam_street/image_raw', '/cam_street/camera_info',
-                         '--wait-for-subscribers', 1, '--rate', 2, timeout=60)
+    recorder = ros_env.start(
+        'bag',
+        'record',
+        '-o',
+        out,
+        '/cam_street/contours',
+        '/cam_street/person_box',
+        '/cam_street/edges',
+        '--idle-timeout',
+        4,
+        '--duration',
+        60,
+    )
+    _wait_for_graph(
+        ros_env, ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges']
+    )
+    played = ros_env.run(
+        'bag',
+        'play',
+        bag,
+        '--topics',
+        '/cam_street/image_raw',
+        '/cam_street/camera_info',
+        '--wait-for-subscribers',
+        1,
+        '--rate',
+        2,
+        timeout=60,
+    )
     assert played.returncode == 0, played.stderr
     recorder.communicate(timeout=60)
     assert node.poll() is None, 'the node must keep running'
-    images = [stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_street/image_raw'])]
+    images = [
+        stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_street/image_raw'])
+    ]
     contours = [m for m in read_messages(out, ['/cam_street/contours'])]
     # every frame, header copied; only the very first may precede its camera_info on another topic
     stamps = [stamp_to_ns(m.message.header.stamp) for m in contours]
     assert stamps in (images, images[1:])
     tables = {stamp: pointcloud_to_array(m.message) for stamp, m in zip(stamps, contours)}
-    assert all(len(tables[s]) == 0 for s in images[1:5])         # learning the background
-    assert all(len(tables[s]) > 50 for s in images[7:])          # the pedestrian's outline
-    assert np.allclose(np.hypot(tables[images[-1]]['tx'], tables[images[-1]]['ty']), 1.0, atol=1e-4)
+    assert all(len(tables[s]) == 0 for s in images[1:5])  # learning the background
+    assert all(len(tables[s]) > 50 for s in images[7:])  # the pedestrian's outline
+    assert np.allclose(
+        np.hypot(tables[images[-1]]['tx'], tables[images[-1]]['ty']), 1.0, atol=1e-4
+    )
     boxes = [m.message for m in read_messages(out, ['/cam_street/person_box'])]
     assert len(boxes[-1].polygon.points) == 4
 
@@ -88,7 +120,9 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
 
         # before any camera_info the image is processed all the same (repeated until the subscription matched;
         # the repeats share a stamp and are dropped as duplicates)
-        spin_until(['no_camera_info', 'processed'], publish=lambda: image_pub.publish(image(sec=1)))
+        spin_until(
+            ['no_camera_info', 'processed'], publish=lambda: image_pub.publish(image(sec=1))
+        )
         info_pub.publish(CameraInfo(width=32, height=24, distortion_model='plumb_bob'))
         # a report published after the last early image arrived (reports come once a second)
         time.sleep(1.2)
@@ -98,21 +132,40 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
         before = int(values['frames_in'])
         processed_before = int(values['processed'])
         dropped_before = int(values.get('dropped.total', 0))
-        for msg in [image('yuv422', sec=2), image(step=10, sec=3), image(size=5, sec=4),
-                    image(width=16, step=16, sec=5), image(sec=6), image(sec=7), image(sec=3)]:  # last jumps back
+        for msg in [
+            image('yuv422', sec=2),
+            image(step=10, sec=3),
+            image(size=5, sec=4),
+            image(width=16, step=16, sec=5),
+            image(sec=6),
+            image(sec=7),
+            image(sec=3),
+        ]:  # last jumps back
             image_pub.publish(msg)
             time.sleep(0.1)
-        spin_until(['dropped.unsupported_encoding', 'dropped.bad_step', 'dropped.bad_data_length',
-                    'dropped.size_mismatch', 'time_jump_resets'])
+        spin_until(
+            [
+                'dropped.unsupported_encoding',
+                'dropped.bad_step',
+                'dropped.bad_data_length',
+                'dropped.size_mismatch',
+                'time_jump_resets',
+            ]
+        )
         time.sleep(1.2)
         reports.clear()
         spin_until(['processed'])
-        assert int(values['processed']) == processed_before + 3 and int(values['frames_in']) == before + 7
+        assert (
+            int(values['processed']) == processed_before + 3
+            and int(values['frames_in']) == before + 7
+        )
         assert int(values['dropped.total']) == dropped_before + 4
         assert node_process.poll() is None
 
 
-def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_background(ros_env, tmp_path):
+def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_background(
+    ros_env, tmp_path
+):
     background_file = tmp_path / 'cam_bg_background.png'
     params = ('background_frames:=3', f'background_file:={background_file}', 'min_region_area:=20')
     rng = np.random.default_rng(0)
@@ -145,9 +198,12 @@ def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_backgroun
                     for status in msg.status:
                         if status.hardware_id == 'cam_bg':
                             values.update({kv.key: kv.value for kv in status.values})
+
                 node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
                 deadline = time.monotonic() + 15
-                while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+                while (
+                    image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1
+                ):
                     executor.spin_once(timeout_sec=0.1)
                     assert time.monotonic() < deadline, 'contour_node did not appear'
                 time.sleep(1.0)
@@ -159,7 +215,10 @@ def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_backgroun
                     while time.monotonic() < end:
                         executor.spin_once(timeout_sec=0.05)
                 end = time.monotonic() + 15
-                while int(values.get('processed', 0)) < sum(f is not None for f in frames) and time.monotonic() < end:
+                while (
+                    int(values.get('processed', 0)) < sum(f is not None for f in frames)
+                    and time.monotonic() < end
+                ):
                     executor.spin_once(timeout_sec=0.1)
                 time.sleep(1.1)
                 end = time.monotonic() + 2
@@ -183,49 +242,68 @@ def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_backgroun
 
 
 def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_env, tmp_path):
-    from memo_ros.core.studio import Studio
+    from memo_ros.core.formats.studio import Studio
+
     sim = simulate('studio-arm', tmp_path / 'arm', frames=2, width=160, height=120)
-    studio = Studio.load(sim.studio)                 # the studio's node entries win over -p: set them there
-    studio.node_parameters['contour_node'].update(segmenter='sequence', background_bag=str(sim.bag),
-                                                  background_track=str(tmp_path / 'no_such_track'))
+    studio = Studio.load(sim.studio)  # the studio's node entries win over -p: set them there
+    studio.node_parameters['contour_node'].update(
+        segmenter='sequence',
+        background_bag=str(sim.bag),
+        background_track=str(tmp_path / 'no_such_track'),
+    )
     studio.save(tmp_path / 'studio.yaml')
-    node = ros_env.start_node('contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml')
+    node = ros_env.start_node(
+        'contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml'
+    )
     out, _ = node.communicate(timeout=60)
     assert node.returncode == 2, out
     lines = [line for line in out.splitlines() if 'no_such_track' in line]
     assert len(lines) == 1 and 'no bag at' in lines[0] and 'Traceback' not in out, out
 
 
-def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_it(ros_env, tmp_path):
+def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_it(
+    ros_env, tmp_path
+):
     # bag replay: whether the tracker's /memo/markers of frame t reach the node before the images of frame
     # t + 1 must not decide the tracked region; with roi_wait the image waits for them (at most roi_wait)
     from visualization_msgs.msg import MarkerArray
 
-    from memo_ros.core.motion import coordinates_from_names
-    from memo_ros.core.studio import Studio
+    from memo_ros.core.formats.studio import Studio
+    from memo_ros.core.multiview.motion import coordinates_from_names
     from memo_ros.ros.body_messages import marker_array_message
+
     sim = simulate('studio-arm', tmp_path / 'arm', frames=4, width=160, height=120)
-    studio = Studio.load(sim.studio)                 # the studio's node entries win over -p: set them there
-    studio.node_parameters['contour_node'].update(keep_regions='tracked', background_frames=1, roi_wait=1.5)
+    studio = Studio.load(sim.studio)  # the studio's node entries win over -p: set them there
+    studio.node_parameters['contour_node'].update(
+        keep_regions='tracked', background_frames=1, roi_wait=1.5
+    )
     studio.save(tmp_path / 'studio.yaml')
     images = [m.message for m in read_messages(sim.bag, ['/cam_front/image_raw'])]
     body = studio.body
     rotations, origins = body.forward_kinematics(
-        coordinates_from_names(body, list(studio.initial_pose), list(studio.initial_pose.values())))
-    process = ros_env.start_node('contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml')
+        coordinates_from_names(body, list(studio.initial_pose), list(studio.initial_pose.values()))
+    )
+    process = ros_env.start_node(
+        'contour_node', '-r', '__ns:=/cam_front', '--params-file', tmp_path / 'studio.yaml'
+    )
     try:
         with ros_session('roi_wait_feeder', ros_env.domain_id) as (node, executor):
             image_pub = node.create_publisher(Image, '/cam_front/image_raw', 10)
             marker_pub = node.create_publisher(MarkerArray, '/memo/markers', 10)
             arrived: dict[int, float] = {}
-            node.create_subscription(PointCloud2, '/cam_front/contours',
-                                     lambda m: arrived.setdefault(stamp_to_ns(m.header.stamp), time.monotonic()), 10)
+            node.create_subscription(
+                PointCloud2,
+                '/cam_front/contours',
+                lambda m: arrived.setdefault(stamp_to_ns(m.header.stamp), time.monotonic()),
+                10,
+            )
             values: dict[str, str] = {}
 
             def on_diagnostics(msg: DiagnosticArray) -> None:
                 for status in msg.status:
                     if status.hardware_id == 'cam_front':
                         values.update({kv.key: kv.value for kv in status.values})
+
             node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
 
             def spin(seconds: float, until=lambda: False) -> None:
@@ -234,7 +312,9 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
                     executor.spin_once(timeout_sec=0.02)
 
             deadline = time.monotonic() + 20
-            while image_pub.get_subscription_count() < 1 or marker_pub.get_subscription_count() < 1:
+            while (
+                image_pub.get_subscription_count() < 1 or marker_pub.get_subscription_count() < 1
+            ):
                 spin(0.1)
                 assert time.monotonic() < deadline, 'contour_node did not appear'
             spin(1.0)
@@ -254,16 +334,16 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
             assert arrived[stamps[0]] - sent < 1.0
             send_markers(0)
             spin(0.3)
-            sent = send_image(1)                         # the body of image 0 is in: no wait
+            sent = send_image(1)  # the body of image 0 is in: no wait
             spin(5.0, lambda: stamps[1] in arrived)
             assert arrived[stamps[1]] - sent < 1.0
-            send_image(2)                                # the body of image 1 is not: it waits ...
+            send_image(2)  # the body of image 1 is not: it waits ...
             spin(0.7)
             assert stamps[2] not in arrived
-            told = send_markers(1)                       # ... until it comes
+            told = send_markers(1)  # ... until it comes
             spin(5.0, lambda: stamps[2] in arrived)
             assert 0 <= arrived[stamps[2]] - told < 0.5
-            sent = send_image(3)                         # the body of image 2 never comes: roi_wait, then on
+            sent = send_image(3)  # the body of image 2 never comes: roi_wait, then on
             spin(5.0, lambda: stamps[3] in arrived)
             assert 1.4 < arrived[stamps[3]] - sent < 3.0
             spin(3.0, lambda: 'roi_wait_timeouts' in values)

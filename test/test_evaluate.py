@@ -1,18 +1,19 @@
 """`memo-ros evaluate` end to end on simulated bags: known errors in, the same numbers out (no DDS)."""
+
 import json
 import os
+from pathlib import Path
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from memo_ros.core.imaging import ImagingOptions
-from memo_ros.core.metrics import phase_error
-from memo_ros.core.rotations import matrix_to_quat, rot_x
-from memo_ros.core.studio import Studio
+from memo_ros.core.evaluation.metrics import phase_error
+from memo_ros.core.formats.studio import Studio
+from memo_ros.core.geometry.rotations import matrix_to_quat, rot_x
+from memo_ros.core.simulation.imaging import ImagingOptions
 from memo_ros.ros.bagio import BagWriter, joint_state_msg, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
@@ -20,17 +21,32 @@ from memo_ros.tools.simulate import simulate
 ROOT = Path(__file__).resolve().parent.parent
 # what the `memo-ros` entry point runs (`-m memo_ros.tools.cli` loads cli.py twice, splitting CliError)
 CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
-SUMMARY_KEYS = ('frames', 'mpjpe_mm_mean', 'mpjpe_mm_max', 'translation_pct_height_max', 'axis_deg_max',
-                'phase_err_median', 'phase_err_max')
+SUMMARY_KEYS = (
+    'frames',
+    'mpjpe_mm_mean',
+    'mpjpe_mm_max',
+    'translation_pct_height_max',
+    'axis_deg_max',
+    'phase_err_median',
+    'phase_err_max',
+)
 SHIFT_MM = 12.0
 TILT_DEG = 2.0
 
 
 def memo_ros_cli(*args: str) -> subprocess.CompletedProcess:
     """Run `memo-ros ARGS` in a fresh interpreter on this checkout."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get('PYTHONPATH')])))
-    return subprocess.run([sys.executable, '-c', CLI_ENTRY, *map(str, args)], env=env,
-                          capture_output=True, text=True, timeout=120)
+    env = dict(
+        os.environ,
+        PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get('PYTHONPATH')])),
+    )
+    return subprocess.run(
+        [sys.executable, '-c', CLI_ENTRY, *map(str, args)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def evaluate_json(truth: Path, estimate: Path, *extra: str) -> dict:
@@ -40,17 +56,28 @@ def evaluate_json(truth: Path, estimate: Path, *extra: str) -> dict:
     return json.loads(done.stdout)
 
 
-def write_estimate(path: Path, track, origin_offset=np.zeros(3), local_rotation=np.eye(3), phase=None) -> Path:
+def write_estimate(
+    path: Path, track, origin_offset=np.zeros(3), local_rotation=np.eye(3), phase=None
+) -> Path:
     """An estimate bag (/memo/body_poses, /memo/joint_states) from a truth track, every part moved alike."""
     with BagWriter(path) as writer:
         for stamp in sorted(track.origins):
             rotations = track.rotations[stamp] @ local_rotation
-            writer.write('/memo/body_poses', stamp,
-                         pose_array_msg(stamp, track.origins[stamp] + origin_offset, matrix_to_quat(rotations)))
+            writer.write(
+                '/memo/body_poses',
+                stamp,
+                pose_array_msg(
+                    stamp, track.origins[stamp] + origin_offset, matrix_to_quat(rotations)
+                ),
+            )
             joints = dict(track.joints[stamp])
             if phase is not None:
                 joints['gait_phase'] = phase(joints['gait_phase'])
-            writer.write('/memo/joint_states', stamp, joint_state_msg(stamp, list(joints), list(joints.values())))
+            writer.write(
+                '/memo/joint_states',
+                stamp,
+                joint_state_msg(stamp, list(joints), list(joints.values())),
+            )
     return path
 
 
@@ -66,7 +93,9 @@ def arm(tmp_path_factory):
 def walk(tmp_path_factory):
     """A 30-frame street-walk truth bag (the gait phase wraps once) and its truth track."""
     out = tmp_path_factory.mktemp('walk') / 'truth'
-    result = simulate('street-walk', out, frames=30, width=160, height=120, options=ImagingOptions(noise=0.0))
+    result = simulate(
+        'street-walk', out, frames=30, width=160, height=120, options=ImagingOptions(noise=0.0)
+    )
     return result, load_track(result.bag, TRUTH_TOPICS)
 
 
@@ -84,8 +113,12 @@ def test_a_bag_against_itself_has_no_error(arm):
 
 def test_known_shift_and_tilt_are_measured_exactly(arm, tmp_path):
     result, track = arm
-    estimate = write_estimate(tmp_path / 'estimate', track, origin_offset=np.array([SHIFT_MM / 1000.0, 0.0, 0.0]),
-                              local_rotation=rot_x(np.radians(TILT_DEG)))
+    estimate = write_estimate(
+        tmp_path / 'estimate',
+        track,
+        origin_offset=np.array([SHIFT_MM / 1000.0, 0.0, 0.0]),
+        local_rotation=rot_x(np.radians(TILT_DEG)),
+    )
     summary = evaluate_json(result.bag, estimate)
     height = Studio.load(result.studio).body.standing_height()
     assert summary['frames'] == 6
@@ -93,14 +126,16 @@ def test_known_shift_and_tilt_are_measured_exactly(arm, tmp_path):
     assert summary['mpjpe_mm_max'] == pytest.approx(SHIFT_MM, abs=1e-6)
     assert summary['axis_deg_max'] == pytest.approx(TILT_DEG, abs=1e-6)
     assert summary['axis_deg_mean'] == pytest.approx(TILT_DEG, abs=1e-6)
-    assert summary['translation_pct_height_max'] == pytest.approx(100.0 * SHIFT_MM / 1000.0 / height, abs=1e-9)
+    assert summary['translation_pct_height_max'] == pytest.approx(
+        100.0 * SHIFT_MM / 1000.0 / height, abs=1e-9
+    )
     assert summary['body_height_m'] == pytest.approx(height)
 
 
 def test_gait_phase_error_is_taken_modulo_the_cycle(walk, tmp_path):
     result, track = walk
     truth_phase = np.array([track.joints[s]['gait_phase'] for s in sorted(track.joints)])
-    assert truth_phase.min() == pytest.approx(0.0) and truth_phase.max() > 0.9      # the truth wraps
+    assert truth_phase.min() == pytest.approx(0.0) and truth_phase.max() > 0.9  # the truth wraps
 
     ahead = write_estimate(tmp_path / 'ahead', track, phase=lambda p: (p + 0.03) % 1.0)
     summary = evaluate_json(result.bag, ahead)
@@ -109,28 +144,37 @@ def test_gait_phase_error_is_taken_modulo_the_cycle(walk, tmp_path):
     assert summary['mpjpe_mm_max'] == pytest.approx(0.0, abs=1e-9)
 
     # where the truth starts a cycle (0.0) the estimate is 0.96 behind it: 0.04, not 0.96
-    behind_at_wrap = write_estimate(tmp_path / 'wrap', track,
-                                    phase=lambda p: 0.96 if p < 1e-9 else (p + 0.03) % 1.0)
+    behind_at_wrap = write_estimate(
+        tmp_path / 'wrap', track, phase=lambda p: 0.96 if p < 1e-9 else (p + 0.03) % 1.0
+    )
     summary = evaluate_json(result.bag, behind_at_wrap)
     assert summary['phase_err_median'] == pytest.approx(0.03, abs=1e-9)
     assert summary['phase_err_max'] == pytest.approx(0.04, abs=1e-9)
-    assert phase_error(np.array([0.99, 0.01]), np.array([0.01, 0.99])) == pytest.approx([0.02, 0.02])
+    assert phase_error(np.array([0.99, 0.01]), np.array([0.01, 0.99])) == pytest.approx(
+        [0.02, 0.02]
+    )
 
 
 def test_plots_are_written(arm, walk, tmp_path):
     result, track = arm
-    estimate = write_estimate(tmp_path / 'estimate', track, origin_offset=np.array([0.0, 0.02, 0.0]))
+    estimate = write_estimate(
+        tmp_path / 'estimate', track, origin_offset=np.array([0.0, 0.02, 0.0])
+    )
     summary = evaluate_json(result.bag, estimate, '--plots', tmp_path / 'plots')
     names = {Path(p).name for p in summary['plots']}
     overlays = sorted(n for n in names if n.startswith('overlay_'))
     assert {'joint_curves.png', 'errors.png'} <= names
-    assert len(overlays) == 4 * 3 and {n.split('_')[2] for n in overlays} == {'front', 'side', 'top'}
+    assert len(overlays) == 4 * 3 and {n.split('_')[2] for n in overlays} == {
+        'front',
+        'side',
+        'top',
+    }
     for name in names:
         image = cv2.imread(str(tmp_path / 'plots' / name))
         assert image is not None and image.size > 0, name
     overlay = cv2.imread(str(tmp_path / 'plots' / overlays[0]))
     assert overlay.shape == (120, 160, 3)
-    assert np.any(overlay[..., 0] != overlay[..., 2])         # the outline is drawn in colour
+    assert np.any(overlay[..., 0] != overlay[..., 2])  # the outline is drawn in colour
 
     walk_result, _ = walk
     summary = evaluate_json(walk_result.bag, walk_result.bag, '--plots', tmp_path / 'walk_plots')
@@ -144,8 +188,11 @@ def test_bad_input_is_one_line_without_traceback(arm, tmp_path):
     not_a_bag = tmp_path / 'not_a_bag'
     not_a_bag.mkdir()
     (not_a_bag / 'notes.txt').write_text('hello\n')
-    for truth, estimate in ((tmp_path / 'missing', result.bag), (not_a_bag, result.bag),
-                            (result.bag, tmp_path / 'missing')):
+    for truth, estimate in (
+        (tmp_path / 'missing', result.bag),
+        (not_a_bag, result.bag),
+        (result.bag, tmp_path / 'missing'),
+    ):
         done = memo_ros_cli('evaluate', '--truth', truth, '--estimate', estimate)
         assert done.returncode != 0
         assert 'Traceback' not in done.stderr

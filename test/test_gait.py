@@ -1,9 +1,10 @@
 """Rohr's walking model: periodic, smooth curves driving the whole body from `pose`."""
+
 import numpy as np
 import pytest
 
-from memo_ros.core.body import PART_NAMES, load_default_body
-from memo_ros.core.gait import ANGLES, GaitCurves, WalkingModel
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.walking.gait import ANGLES, GaitCurves, WalkingModel
 
 
 @pytest.fixture(scope='module')
@@ -14,7 +15,9 @@ def curves():
 def test_curves_are_periodic_with_continuous_first_and_second_derivatives(curves):
     for name in ANGLES:
         for d in (0, 1, 2):
-            assert curves.angle(name, 0.0, d) == pytest.approx(curves.angle(name, 1.0 - 1e-12, d), abs=1e-6)
+            assert curves.angle(name, 0.0, d) == pytest.approx(
+                curves.angle(name, 1.0 - 1e-12, d), abs=1e-6
+            )
         # across every interior knot the first and second derivatives are continuous
         knots = curves.knots[1:-1]
         for d in (1, 2):
@@ -24,9 +27,14 @@ def test_curves_are_periodic_with_continuous_first_and_second_derivatives(curves
 
 
 def test_curves_interpolate_the_table(curves):
-    table = np.genfromtxt(__import__('memo_ros.paths', fromlist=['x']).config_path('gait_cgm23_sagittal.csv'),
-                          delimiter=',', names=True)
-    assert np.allclose(curves.angle('knee', table['cycle_fraction'][:-1]), np.radians(table['knee_deg'][:-1]))
+    table = np.genfromtxt(
+        __import__('memo_ros.paths', fromlist=['x']).config_path('gait_cgm23_sagittal.csv'),
+        delimiter=',',
+        names=True,
+    )
+    assert np.allclose(
+        curves.angle('knee', table['cycle_fraction'][:-1]), np.radians(table['knee_deg'][:-1])
+    )
 
 
 def test_rohr_ten_instants_option():
@@ -49,7 +57,8 @@ def test_walking_model_left_lags_right_by_half_a_cycle_and_feet_touch_ground():
     q_half = walker.coordinates(np.mod(pose + 0.5, 1.0))
     assert np.allclose(q[:, hip_l], q_half[:, hip_r])
     rotations, origins = body.forward_kinematics(q)
-    from memo_ros.core.body import lowest_point
+    from memo_ros.core.geometry.body import lowest_point
+
     assert np.allclose(lowest_point(body, rotations, origins), 0.0, atol=2e-4)
     # the vertical displacement is small and periodic (Rohr §3.2)
     height = walker.pelvis_height(pose)
@@ -65,6 +74,6 @@ def test_heel_strike_posture_at_pose_zero():
     ends = body.distal_ends(rotations, origins)
     ankle_r = origins[PART_NAMES.index('foot_r')]
     ankle_l = origins[PART_NAMES.index('foot_l')]
-    assert ankle_r[0] > ankle_l[0] + 0.3          # right foot ahead at right heel strike
+    assert ankle_r[0] > ankle_l[0] + 0.3  # right foot ahead at right heel strike
     hand_r = ends[PART_NAMES.index('hand_r')]
-    assert hand_r[0] < 0                           # right arm swings back
+    assert hand_r[0] < 0  # right arm swings back

@@ -1,4 +1,5 @@
 """`memo-ros launch`: one contour_node per camera as processes; all stop together, a death is reported."""
+
 from __future__ import annotations
 
 import os
@@ -6,7 +7,7 @@ import re
 import signal
 import time
 
-from memo_ros.core.studio import Studio, load_studio, studio_path
+from memo_ros.core.formats.studio import Studio, load_studio, studio_path
 from memo_ros.ros.dds import ros_session
 from memo_ros.tools.launch import graph_commands
 
@@ -41,7 +42,7 @@ def test_ctrl_c_stops_every_node_and_exits_zero(ros_env):
     assert launcher.returncode == 0, out
     pids = _started_pids(out)
     labels = [n.label for n in graph_commands(studio, studio_path('studio_orthogonal'))]
-    assert 'selector_node' in labels                     # the multi-camera graph selects cameras per part
+    assert 'selector_node' in labels  # the multi-camera graph selects cameras per part
     assert len(pids) == len(labels) and not any(_alive(p) for p in pids)
     assert 'stopping on request' in out
 
@@ -68,11 +69,18 @@ def test_unknown_studio_is_one_line(ros_env):
 
 def test_ros2_launch_file_compiles_and_names_the_shipped_executable():
     from conftest import ROOT
+
     source = (ROOT / 'launch' / 'memo.launch.py').read_text()
     compile(source, 'memo.launch.py', 'exec')
     setup = (ROOT / 'setup.py').read_text()
-    assert "executable='contour_node'" in source and "'contour_node = memo_ros.nodes.contour_node:main'" in setup
-    assert "executable='selector_node'" in source and "'selector_node = memo_ros.nodes.selector_node:main'" in setup
+    assert (
+        "executable='contour_node'" in source
+        and "'contour_node = memo_ros.nodes.contour_node:main'" in setup
+    )
+    assert (
+        "executable='selector_node'" in source
+        and "'selector_node = memo_ros.nodes.selector_node:main'" in setup
+    )
 
 
 def test_roles_split_the_graph_between_camera_hosts_and_a_tracking_host():

@@ -1,4 +1,5 @@
 """LostFrameCounter: images that never arrived are found from their camera_info, each exactly once."""
+
 from memo_ros.ros.lost_frames import LostFrameCounter
 
 
@@ -6,12 +7,12 @@ def test_announced_frames_without_an_image_are_lost_once_a_newer_image_arrives()
     c = LostFrameCounter()
     assert c.announced(1) == [] and c.received(1) == []
     assert c.announced(2) == [] and c.announced(3) == []
-    assert c.received(3) == [2]                 # 2 never came, and images arrive in order
+    assert c.received(3) == [2]  # 2 never came, and images arrive in order
     assert c.announced(4) == [] and c.announced(5) == []
     assert c.received(5) == [4]
-    assert c.received(6) == []                  # an image before its camera_info
+    assert c.received(6) == []  # an image before its camera_info
     assert c.announced(6) == []
-    assert c.announced(2) == []                 # a repeated announcement is not a second loss
+    assert c.announced(2) == []  # a repeated announcement is not a second loss
 
 
 def test_an_announcement_older_than_the_newest_image_is_lost_at_once_and_unstamped_ones_name_no_frame():

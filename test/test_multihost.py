@@ -6,23 +6,29 @@ on one host.
 Needs root and network namespaces (`ip netns`); skipped, with the reason, where the machine does not allow
 them.
 """
+
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import shutil
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-from memo_ros.core.imaging import ImagingOptions
-from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
+from memo_ros.core.simulation.imaging import ImagingOptions
+from memo_ros.tools.evaluate import (
+    ESTIMATE_TOPICS,
+    TRUTH_TOPICS,
+    load_track,
+    match_and_measure,
+)
 from memo_ros.tools.simulate import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
-SUBNET = '10.{}.{}'                       # 10.X.Y.0/24, X.Y from the pid: concurrent runs do not collide
+SUBNET = '10.{}.{}'  # 10.X.Y.0/24, X.Y from the pid: concurrent runs do not collide
 
 
 def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -33,7 +39,9 @@ def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
 def hosts():
     """Two hosts, ``cams`` and ``track``, as network namespaces on a bridge; their names and addresses."""
     if os.geteuid() != 0 or shutil.which('ip') is None:
-        pytest.skip('multi-host test skipped: needs root and iproute2 (`ip netns`) for network namespaces')
+        pytest.skip(
+            'multi-host test skipped: needs root and iproute2 (`ip netns`) for network namespaces'
+        )
     tag = os.getpid() % 10000
     net = SUBNET.format(100 + tag // 250 % 100, tag % 250)
     bridge = f'memo_br{tag}'
@@ -44,14 +52,18 @@ def hosts():
         try:
             _ip('link', 'add', bridge, 'type', 'bridge')
         except subprocess.CalledProcessError as exc:
-            pytest.skip(f'multi-host test skipped: this machine does not allow network devices: {exc.stderr.strip()}')
+            pytest.skip(
+                f'multi-host test skipped: this machine does not allow network devices: {exc.stderr.strip()}'
+            )
         made.append(bridge)
         _ip('link', 'set', bridge, 'up')
         for role, ns in names.items():
             try:
                 _ip('netns', 'add', ns)
             except subprocess.CalledProcessError as exc:
-                pytest.skip(f'multi-host test skipped: network namespaces not allowed: {exc.stderr.strip()}')
+                pytest.skip(
+                    f'multi-host test skipped: network namespaces not allowed: {exc.stderr.strip()}'
+                )
             made.append(ns)
             veth = f'v{tag}{role[0]}'
             _ip('link', 'add', veth, 'type', 'veth', 'peer', 'name', 'eth0', 'netns', ns)
@@ -71,22 +83,49 @@ def hosts():
 def test_the_graph_split_over_a_camera_host_and_a_tracking_host(hosts, ros_env, tmp_path):
     names, address = hosts
     sim = simulate('studio-walk', tmp_path / 'walk', options=ImagingOptions(noise=3.0))
-    env = dict(ros_env, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_STATIC_PEERS=';'.join(address.values()),
-               FASTDDS_BUILTIN_TRANSPORTS='UDPv4')                     # no shared memory across the hosts
+    env = dict(
+        ros_env,
+        ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+        ROS_STATIC_PEERS=';'.join(address.values()),
+        FASTDDS_BUILTIN_TRANSPORTS='UDPv4',
+    )  # no shared memory across the hosts
 
     def on(host: str, *args) -> list[str]:
-        return ['ip', 'netns', 'exec', names[host], sys.executable, '-m', 'memo_ros.tools.cli', *map(str, args)]
+        return [
+            'ip',
+            'netns',
+            'exec',
+            names[host],
+            sys.executable,
+            '-m',
+            'memo_ros.tools.cli',
+            *map(str, args),
+        ]
 
-    graph = [subprocess.Popen(on(host, 'launch', sim.studio, '--reliable-images', '--role', role), env=env, cwd=ROOT,
-                              text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-             for host, role in (('cams', 'cameras'), ('track', 'tracking'))]
+    graph = [
+        subprocess.Popen(
+            on(host, 'launch', sim.studio, '--reliable-images', '--role', role),
+            env=env,
+            cwd=ROOT,
+            text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        for host, role in (('cams', 'cameras'), ('track', 'tracking'))
+    ]
     try:
         # the camera host plays the bag into its contour nodes and records what comes back from the tracking host
         out = tmp_path / 'out'
-        replay = subprocess.run(on('cams', 'replay', sim.bag, '--no-launch', '--out', out), env=env, cwd=ROOT,
-                                text=True, capture_output=True, timeout=600)
+        replay = subprocess.run(
+            on('cams', 'replay', sim.bag, '--no-launch', '--out', out),
+            env=env,
+            cwd=ROOT,
+            text=True,
+            capture_output=True,
+            timeout=600,
+        )
         assert replay.returncode == 0, replay.stderr + replay.stdout
-        assert all(p.poll() is None for p in graph), 'a host\'s graph died'
+        assert all(p.poll() is None for p in graph), "a host's graph died"
     finally:
         for p in graph:
             if p.poll() is None:
@@ -95,7 +134,11 @@ def test_the_graph_split_over_a_camera_host_and_a_tracking_host(hosts, ros_env, 
     assert all('tracker_node' not in log for log in logs[:1]) and 'tracker_node' in logs[1]
     truth = load_track(sim.bag, TRUTH_TOPICS)
     errors = match_and_measure(truth, load_track(out, ESTIMATE_TOPICS), 1_000_000)
-    print(f'two hosts: {len(errors.stamps_ns)}/{len(truth.origins)} frames, MPJPE mean {errors.mpjpe_mm.mean():.1f} mm, '
-          f'worst frame {errors.mpjpe_mm.max():.1f} mm')
+    print(
+        f'two hosts: {len(errors.stamps_ns)}/{len(truth.origins)} frames, MPJPE mean {errors.mpjpe_mm.mean():.1f} mm, '
+        f'worst frame {errors.mpjpe_mm.max():.1f} mm'
+    )
     assert len(errors.stamps_ns) == len(truth.origins)
-    assert errors.mpjpe_mm.mean() <= 25.0 and errors.mpjpe_mm.max() <= 80.0     # studio-walk, as on one host
+    assert (
+        errors.mpjpe_mm.mean() <= 25.0 and errors.mpjpe_mm.max() <= 80.0
+    )  # studio-walk, as on one host

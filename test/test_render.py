@@ -1,11 +1,12 @@
 """Ray-casting renderer against analytic projected areas and occlusion."""
+
 import numpy as np
 import pytest
 
-from memo_ros.core.body import load_default_body
-from memo_ros.core.camera import Camera
-from memo_ros.core.render import render, render_body
-from memo_ros.core.rotations import rot_x
+from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.camera import Camera
+from memo_ros.core.geometry.render import render, render_body
+from memo_ros.core.geometry.rotations import rot_x
 
 F = 500.0
 
@@ -36,7 +37,7 @@ def test_side_view_is_the_rectangle_between_the_tangent_planes():
     cam = _camera(eye=(dist, 0, 0.5), target=(0, 0, 0.5), width=800, height=800, f=f)
     rotations, origins = _pose((0, 0, 0))
     r = render(cam, rotations, origins, np.array([[r_cyl, r_cyl]]), np.array([length]))
-    width = 2 * f * r_cyl / np.sqrt(dist ** 2 - r_cyl ** 2)
+    width = 2 * f * r_cyl / np.sqrt(dist**2 - r_cyl**2)
     height = f * length / dist
     assert r.unoccluded_area[0] == pytest.approx(width * height, rel=0.02)
 
@@ -46,7 +47,9 @@ def test_occlusion_of_a_coaxial_cylinder_leaves_an_annulus():
     d = 3.0
     cam = _camera(eye=(0, 0, d), target=(0, 0, 0), up=(1, 0, 0))
     rotations = np.stack([np.eye(3), np.eye(3)])
-    origins = np.array([[0, 0, 0.0], [0, 0, 1.0]])          # back part 0: z in [0, 0.5]; front part 1: [1, 1.5]
+    origins = np.array(
+        [[0, 0, 0.0], [0, 0, 1.0]]
+    )  # back part 0: z in [0, 0.5]; front part 1: [1, 1.5]
     axes = np.array([[0.3, 0.3], [0.1, 0.1]])
     lengths = np.array([0.5, 0.5])
     r = render(cam, rotations, origins, axes, lengths)
@@ -71,10 +74,10 @@ def test_reduced_resolution_scales_areas_with_the_square_of_the_scale():
 
 def test_arm_behind_the_torso_is_hidden_from_the_side():
     body = load_default_body()
-    side = _camera(eye=(0, 4.0, 1.0), target=(0, 0, 1.0))         # left side
+    side = _camera(eye=(0, 4.0, 1.0), target=(0, 0, 1.0))  # left side
     r = render_body(side, body, body.neutral())
     visible = r.visible_area(14)
-    arm_r = [5, 6]                                                    # upper_arm_r, forearm_r
+    arm_r = [5, 6]  # upper_arm_r, forearm_r
     assert np.all(visible[arm_r] < 0.05 * r.unoccluded_area[arm_r])
     front = _camera(eye=(4.0, 0, 1.0), target=(0, 0, 1.0))
     rf = render_body(front, body, body.neutral())
@@ -93,5 +96,7 @@ def test_normals_face_the_camera_and_parts_subset():
     rotations, origins = body.forward_kinematics(body.neutral())
     only_head = render(cam, rotations, origins, body.semi_axes, body.lengths, parts=[1])
     assert set(np.unique(only_head.label)) == {0, 2}
-    tilted = render(cam, rot_x(0.3)[None] @ rotations[:1], origins[:1], body.semi_axes[:1], body.lengths[:1])
+    tilted = render(
+        cam, rot_x(0.3)[None] @ rotations[:1], origins[:1], body.semi_axes[:1], body.lengths[:1]
+    )
     assert tilted.unoccluded_area[0] > 0

@@ -1,33 +1,35 @@
 """tracker_node as its own process over real DDS: frames in, joint states out, bad input counted, resets."""
+
 from __future__ import annotations
 
 import subprocess
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
+from test_tracking_core import _silhouette_contours
 
-from memo_ros.core.body import load_default_body
-from memo_ros.core.scenarios import make_scenario
-from memo_ros.core.selection import Assignment
-from memo_ros.core.studio import Studio
+from memo_ros.core.formats.studio import Studio
+from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.multiview.selection import Assignment
+from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.body_messages import PROCESSED_TOPIC, stamp_from_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
-from test_tracking_core import _silhouette_contours
-
 BODY = load_default_body()
-T0 = 1_800_000_000 * 10 ** 9
+T0 = 1_800_000_000 * 10**9
 DT = 33_333_333
 
 
 def _start_tracker(ros_env, studio_path, *params: str) -> subprocess.Popen:
-    return ros_env.start_node('tracker_node', '--params-file', studio_path, *[a for p in params for a in ('-p', p)])
+    return ros_env.start_node(
+        'tracker_node', '--params-file', studio_path, *[a for p in params for a in ('-p', p)]
+    )
 
 
 def _cloud(table, stamp_ns: int) -> PointCloud2:
@@ -40,7 +42,9 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
     scenario = make_scenario('studio-arm', BODY)
     q, _ = scenario.coordinates(np.arange(12) / scenario.frame_rate)
     studio = tmp_path / 'studio.yaml'
-    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(studio)
+    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(
+        studio
+    )
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.05')
     cams = [c.name for c in scenario.cameras]
     with ros_session('tracker_feeder', ros_env.domain_id) as (node, executor):
@@ -55,6 +59,7 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
             for status in msg.status:
                 if status.name.endswith('tracker_node'):
                     values.update({kv.key: kv.value for kv in status.values})
+
         node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
         reset = node.create_client(Trigger, '/tracker_node/reset')
 
@@ -67,25 +72,32 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
             end = time.monotonic() + timeout
             while not condition() and time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.1)
-            assert condition(), " ".join(f"{k}={v}" for k, v in sorted(values.items()))
+            assert condition(), ' '.join(f'{k}={v}' for k, v in sorted(values.items()))
 
-        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values())
-                   and assign_pub.get_subscription_count() > 0)
+        spin_until(
+            lambda: (
+                all(p.get_subscription_count() for p in pubs.values())
+                and assign_pub.get_subscription_count() > 0
+            )
+        )
         spin(1.0)
         tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(len(q))]
 
         def send(k: int, stamp: int, override: dict | None = None) -> None:
             for cam in cams:
                 table = (override or {}).get(cam, tables[k][cam])
-                pubs[cam].publish(table if isinstance(table, PointCloud2) else _cloud(table, stamp))
+                pubs[cam].publish(
+                    table if isinstance(table, PointCloud2) else _cloud(table, stamp)
+                )
             spin(0.25)
 
         for k in range(6):
             send(k, T0 + k * DT)
         spin_until(lambda: len(joints) >= 6)
         assert list(joints[0].name) == list(BODY.coordinate_names)
-        assert [j.header.stamp.sec * 10 ** 9 + j.header.stamp.nanosec for j in joints[:6]] == \
-            [T0 + k * DT for k in range(6)]
+        assert [j.header.stamp.sec * 10**9 + j.header.stamp.nanosec for j in joints[:6]] == [
+            T0 + k * DT for k in range(6)
+        ]
         hand = BODY.coordinate_names.index('shoulder_r_y')
         assert abs(joints[5].position[hand] - q[5][hand]) < 0.1
 
@@ -97,25 +109,40 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
         bad = np.zeros(5, dtype=[('x', '<f4'), ('y', '<f4')])
         send(7, T0 + 7 * DT, {'cam_side': _cloud(bad, T0 + 7 * DT)})
         # an assignment naming a camera the studio lacks
-        assign_pub.publish(assignment_to_message(Assignment.all_cameras(cams + ['cam_ghost']), T0 + 8 * DT))
+        assign_pub.publish(
+            assignment_to_message(Assignment.all_cameras(cams + ['cam_ghost']), T0 + 8 * DT)
+        )
         send(8, T0 + 8 * DT)
         # a message of a frame already processed is counted; a frame first heard of after newer ones were
         # processed is dropped as late and still reported on /memo/processed
         pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT))
         pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT + DT // 2))
         spin(0.3)
-        assert any(p.frame_id == 'late' and p.stamp.sec * 10 ** 9 + p.stamp.nanosec == T0 + 2 * DT + DT // 2
-                   for p in processed)
+        assert any(
+            p.frame_id == 'late' and p.stamp.sec * 10**9 + p.stamp.nanosec == T0 + 2 * DT + DT // 2
+            for p in processed
+        )
         # the bag loops: stamps jump back 10 s
-        send(0, T0 - 10 * 10 ** 9)
-        spin_until(lambda: {'nan_contour_points', 'dropped.bad_contours', 'dropped.assignment_unknown_camera',
-                            'late_messages', 'dropped.late_frame', 'time_jump_resets'} <= set(values))
+        send(0, T0 - 10 * 10**9)
+        spin_until(
+            lambda: (
+                {
+                    'nan_contour_points',
+                    'dropped.bad_contours',
+                    'dropped.assignment_unknown_camera',
+                    'late_messages',
+                    'dropped.late_frame',
+                    'time_jump_resets',
+                }
+                <= set(values)
+            )
+        )
         assert reset.wait_for_service(timeout_sec=10)
         future = reset.call_async(Trigger.Request())
         spin_until(future.done)
         assert future.result().success
         before = len(joints)
-        send(1, T0 - 10 * 10 ** 9 + DT)
+        send(1, T0 - 10 * 10**9 + DT)
         spin_until(lambda: len(joints) > before)
         spin_until(lambda: 'resets' in values)
         assert process.poll() is None, 'the tracker must keep running'

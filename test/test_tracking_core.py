@@ -1,22 +1,50 @@
 """The tracker's science without DDS: motion model, Jacobian L, force assignment, information-form EKF, track states."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from memo_ros.core.body import PART_NAMES, load_default_body
-from memo_ros.core.contours import occluding_contours, silhouette_outlines
-from memo_ros.core.correspondence import (Candidates, ContourRays, assign_forces, contour_rays, on_outline,
-                                          outline_candidates, ray_part_hits, rig_on_outline, rig_outline_candidates)
-from memo_ros.core.ekf import ArticulatedEKF, Measurements
-from memo_ros.core.kinematic_jacobian import chain_axes, point_jacobian, projected_rows
-from memo_ros.core.model_nodes import fan_alignment, model_nodes
-from memo_ros.core.motion import (ConstantVelocity, coordinate_rates, coordinates_from_names, local_difference,
-                                  retract, right_jacobian, tangent_rates)
-from memo_ros.core.render import render
-from memo_ros.core.rotations import rotvec_to_matrix
-from memo_ros.core.scenarios import make_scenario
-from memo_ros.core.tracking import LOST, TRACKING, WAITING, ArticulatedTracker, FirstOutline, TrackerSettings
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.render import render
+from memo_ros.core.geometry.rotations import rotvec_to_matrix
+from memo_ros.core.multiview.correspondence import (
+    Candidates,
+    ContourRays,
+    assign_forces,
+    contour_rays,
+    on_outline,
+    outline_candidates,
+    ray_part_hits,
+    rig_on_outline,
+    rig_outline_candidates,
+)
+from memo_ros.core.multiview.ekf import ArticulatedEKF, Measurements
+from memo_ros.core.multiview.kinematic_jacobian import (
+    chain_axes,
+    point_jacobian,
+    projected_rows,
+)
+from memo_ros.core.multiview.model_nodes import fan_alignment, model_nodes
+from memo_ros.core.multiview.motion import (
+    ConstantVelocity,
+    coordinate_rates,
+    coordinates_from_names,
+    local_difference,
+    retract,
+    right_jacobian,
+    tangent_rates,
+)
+from memo_ros.core.multiview.tracking import (
+    LOST,
+    TRACKING,
+    WAITING,
+    ArticulatedTracker,
+    FirstOutline,
+    TrackerSettings,
+)
+from memo_ros.core.simulation.scenarios import make_scenario
+from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
 
 BODY = load_default_body()
 
@@ -39,14 +67,23 @@ def _random_pose(seed: int) -> np.ndarray:
 def test_right_jacobian_and_increments_are_exact():
     r = np.array([0.7, -1.1, 0.4])
     dr = 1e-6 * np.array([1.0, 2.0, -1.0])
-    assert np.allclose(rotvec_to_matrix(r + dr), rotvec_to_matrix(r) @ rotvec_to_matrix(right_jacobian(r) @ dr),
-                       atol=1e-11)
+    assert np.allclose(
+        rotvec_to_matrix(r + dr),
+        rotvec_to_matrix(r) @ rotvec_to_matrix(right_jacobian(r) @ dr),
+        atol=1e-11,
+    )
     model = ConstantVelocity(BODY)
     q, qdot = _random_pose(1), np.random.default_rng(2).normal(0, 1, BODY.n_coordinates)
-    assert np.allclose(local_difference(retract(q, 0.1 * qdot, model.groups), q, model.groups), 0.1 * qdot)
-    assert np.allclose(coordinate_rates(q, tangent_rates(q, qdot, model.groups), model.groups), qdot)
+    assert np.allclose(
+        local_difference(retract(q, 0.1 * qdot, model.groups), q, model.groups), 0.1 * qdot
+    )
+    assert np.allclose(
+        coordinate_rates(q, tangent_rates(q, qdot, model.groups), model.groups), qdot
+    )
     q_next, _ = model.predict_coordinates(q, qdot, 1e-5)
-    assert np.allclose((q_next - q) / 1e-5, qdot, atol=1e-4)     # the selector's prediction is q + q' dt
+    assert np.allclose(
+        (q_next - q) / 1e-5, qdot, atol=1e-4
+    )  # the selector's prediction is q + q' dt
 
 
 def test_coordinates_from_names_refuses_unknown_names():
@@ -90,9 +127,12 @@ def test_ray_part_hits_find_the_renderers_nearest_part_and_depth():
     rotations, origins = BODY.forward_kinematics(q[0])
     for cam in scenario.cameras:
         image = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths)
-        rays = cam.pixel_grid_rays()[::3, ::3].reshape(-1, 3)       # pixel centres, as the renderer casts them
-        ray, part, dist = ray_part_hits([cam], np.zeros(len(rays), int), rays, rotations, origins,
-                                        BODY.semi_axes, BODY.lengths)
+        rays = cam.pixel_grid_rays()[::3, ::3].reshape(
+            -1, 3
+        )  # pixel centres, as the renderer casts them
+        ray, part, dist = ray_part_hits(
+            [cam], np.zeros(len(rays), int), rays, rotations, origins, BODY.semi_axes, BODY.lengths
+        )
         nearest = np.full(len(rays), np.inf)
         np.minimum.at(nearest, ray, dist)
         label = np.zeros(len(rays), int)
@@ -100,10 +140,14 @@ def test_ray_part_hits_find_the_renderers_nearest_part_and_depth():
         label[ray[first]] = part[first] + 1
         expected = image.label[::3, ::3].reshape(-1)
         agree = label == expected
-        assert expected.any() and agree.mean() > 0.999, cam.name      # grazing rays may round either way
+        assert expected.any() and agree.mean() > 0.999, (
+            cam.name
+        )  # grazing rays may round either way
         depth = nearest * (rays @ cam.R_world_cam[:, 2])
         seen = agree & (label > 0)
-        assert np.allclose(depth[seen], image.depth[::3, ::3].reshape(-1)[seen], rtol=1e-5), cam.name
+        assert np.allclose(depth[seen], image.depth[::3, ::3].reshape(-1)[seen], rtol=1e-5), (
+            cam.name
+        )
 
 
 def test_rig_batches_equal_the_per_camera_candidates_and_outline_tests():
@@ -115,19 +159,28 @@ def test_rig_batches_equal_the_per_camera_candidates_and_outline_tests():
     rig = rig_outline_candidates(cams, nodes, rotations, origins)
     keys = [np.sort(c.key)[::2] for c in rig]
     for k, cam in enumerate(cams):
-        for batch, single in ((rig[k], outline_candidates(cam, nodes, rotations, origins)),
-                              (rig_outline_candidates(cams, nodes, rotations, origins, keys)[k],
-                               outline_candidates(cam, nodes, rotations, origins, keys[k]))):
+        for batch, single in (
+            (rig[k], outline_candidates(cam, nodes, rotations, origins)),
+            (
+                rig_outline_candidates(cams, nodes, rotations, origins, keys)[k],
+                outline_candidates(cam, nodes, rotations, origins, keys[k]),
+            ),
+        ):
             for name in ('part', 'points', 'normal', 'cap', 'rim', 'uv', 'key'):
-                assert np.array_equal(getattr(batch, name), getattr(single, name)), (cam.name, name)
+                assert np.array_equal(getattr(batch, name), getattr(single, name)), (
+                    cam.name,
+                    name,
+                )
     flags = rig_on_outline(cams, rig, rotations, origins, BODY.semi_axes, BODY.lengths)
     lazy = FirstOutline(cams, rig, rotations, origins, BODY, 2.0)
     some = [np.arange(0, len(c), 3) for c in rig]
     for k, cam in enumerate(cams):
         single = on_outline(cam, rig[k], rotations, origins, BODY.semi_axes, BODY.lengths)
         assert np.array_equal(flags[k], single) and 0 < single.sum() < len(single), cam.name
-        assert np.array_equal(lazy.usable(some)[k], single[some[k]])      # tested on demand ...
-    assert all(np.array_equal(u, f) for u, f in zip(lazy.usable([np.arange(len(c)) for c in rig]), flags))  # ... or all
+        assert np.array_equal(lazy.usable(some)[k], single[some[k]])  # tested on demand ...
+    assert all(
+        np.array_equal(u, f) for u, f in zip(lazy.usable([np.arange(len(c)) for c in rig]), flags)
+    )  # ... or all
 
 
 def _reference_assignment(rays, cand, epsilon, gate):
@@ -139,7 +192,7 @@ def _reference_assignment(rays, cand, epsilon, gate):
             if d[c] >= gate:
                 break
             side = cand.normal[c] @ rays.k[s]
-            fan = fan_alignment(cand.normal[c:c + 1], cand.cap[c:c + 1], rays.k[s:s + 1])[0]
+            fan = fan_alignment(cand.normal[c : c + 1], cand.cap[c : c + 1], rays.k[s : s + 1])[0]
             if (fan if cand.rim[c] else side) >= epsilon[cand.part[c]]:
                 if cand.usable is None or cand.usable[c]:
                     out.append((s, c))
@@ -151,10 +204,20 @@ def test_assignment_takes_the_first_compatible_of_the_eight_nearest_candidates()
     rng = np.random.default_rng(8)
     n_s, n_c = 400, 300
     unit = lambda a: a / np.linalg.norm(a, axis=1, keepdims=True)
-    rays = ContourRays(rng.uniform(0, 200, (n_s, 2)), unit(rng.normal(0, 1, (n_s, 2))), unit(rng.normal(0, 1, (n_s, 3))))
+    rays = ContourRays(
+        rng.uniform(0, 200, (n_s, 2)),
+        unit(rng.normal(0, 1, (n_s, 2))),
+        unit(rng.normal(0, 1, (n_s, 3))),
+    )
     rim = rng.random(n_c) < 0.5
-    cand = Candidates(rng.integers(0, 4, n_c), rng.normal(0, 1, (n_c, 3)), unit(rng.normal(0, 1, (n_c, 3))),
-                      np.where(rim[:, None], unit(rng.normal(0, 1, (n_c, 3))), 0.0), rim, rng.uniform(0, 200, (n_c, 2)))
+    cand = Candidates(
+        rng.integers(0, 4, n_c),
+        rng.normal(0, 1, (n_c, 3)),
+        unit(rng.normal(0, 1, (n_c, 3))),
+        np.where(rim[:, None], unit(rng.normal(0, 1, (n_c, 3))), 0.0),
+        rim,
+        rng.uniform(0, 200, (n_c, 2)),
+    )
     epsilon = np.array([0.9, 0.5, 0.0, -0.5])
     m = assign_forces(rays, cand, epsilon, 12.0)
     reference = _reference_assignment(rays, cand, epsilon, 12.0)
@@ -170,7 +233,9 @@ def test_samples_within_a_radius_agree_with_the_kd_tree():
     points = rng.uniform(0, 400, (3000, 2))
     for radius in (3.0, 12.5, 50.0):
         expected = np.isfinite(rays.tree.query(points, k=1, distance_upper_bound=radius)[0])
-        assert np.array_equal(rays.within(points, radius), expected) and 0 < expected.sum() < len(points)
+        assert np.array_equal(rays.within(points, radius), expected) and 0 < expected.sum() < len(
+            points
+        )
 
 
 def test_force_assignment_at_the_true_pose_leaves_subpixel_residuals_and_matching_normals():
@@ -181,7 +246,9 @@ def test_force_assignment_at_the_true_pose_leaves_subpixel_residuals_and_matchin
     nodes = model_nodes(BODY)
     for cam in scenario.cameras:
         rays = contour_rays(cam, tables[cam.name])
-        cand = outline_candidates(cam, nodes, rotations, origins)    # on the outline by the exact ray test
+        cand = outline_candidates(
+            cam, nodes, rotations, origins
+        )  # on the outline by the exact ray test
         cand = cand.subset(on_outline(cam, cand, rotations, origins, BODY.semi_axes, BODY.lengths))
         m = assign_forces(rays, cand, nodes.epsilon, 25.0)
         assert len(m.sample) > 0.9 * len(rays.uv)
@@ -189,7 +256,10 @@ def test_force_assignment_at_the_true_pose_leaves_subpixel_residuals_and_matchin
         assert np.median(np.abs(r)) < 0.3 and np.percentile(np.abs(r), 95) < 1.5, cam.name
         side = ~cand.rim[m.node]
         # eq. 13 with the plane normal k_z oriented out of the silhouette, like the surface normal
-        assert np.median(np.einsum('ni,ni->n', rays.k[m.sample][side], cand.normal[m.node][side])) > 0.99
+        assert (
+            np.median(np.einsum('ni,ni->n', rays.k[m.sample][side], cand.normal[m.node][side]))
+            > 0.99
+        )
 
 
 def test_information_form_update_equals_the_covariance_form_for_a_linear_measurement():
@@ -200,13 +270,13 @@ def test_information_form_update_equals_the_covariance_form_for_a_linear_measure
     ekf.initialize(np.zeros(n), None, rng.uniform(0.05, 0.2, n), 0.5)
     ekf.q[3:6] = 0.0
     H = np.zeros((40, n))
-    H[:, 6:] = rng.normal(0, 1, (40, n - 6))          # joints only: additive coordinates, linear model
+    H[:, 6:] = rng.normal(0, 1, (40, n - 6))  # joints only: additive coordinates, linear model
     truth = np.zeros(n)
     truth[6:] = rng.normal(0, 0.1, n - 6)
     z = H @ truth
     P = ekf.P.copy()
     HP = np.hstack([H, np.zeros((40, n))])
-    S = HP @ P @ HP.T + 0.01 ** 2 * np.eye(40)
+    S = HP @ P @ HP.T + 0.01**2 * np.eye(40)
     expected = (P @ HP.T @ np.linalg.solve(S, z))[:n]
     ekf.update(lambda q: Measurements(H, z - H @ q, np.full(40, 0.01)), iterations=1, gate=1e9)
     assert np.allclose(ekf.q, expected, atol=1e-8)
@@ -231,7 +301,12 @@ def test_no_contours_loses_the_track_and_contours_bring_it_back():
     q0, _ = scenario.coordinates(np.zeros(1))
     settings = TrackerSettings(lost_after=3)
     tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=q0[0])
-    assert tracker.step(0, {c.name: np.zeros(0, dtype=[('x', 'f4')]) for c in scenario.cameras}).status == WAITING
+    assert (
+        tracker.step(
+            0, {c.name: np.zeros(0, dtype=[('x', 'f4')]) for c in scenario.cameras}
+        ).status
+        == WAITING
+    )
     contours = _silhouette_contours(scenario.cameras, q0[0])
     assert tracker.step(1, contours).status == TRACKING
     states = [tracker.step(2 + k, {}).status for k in range(3)]

@@ -1,4 +1,5 @@
 """Rohr's walker through the real graph: a street-walk bag played into contour_node + walker_node over DDS."""
+
 from __future__ import annotations
 
 import signal
@@ -7,22 +8,35 @@ import time
 import numpy as np
 import pytest
 
-from memo_ros.ros.dds import ros_session
 from memo_ros.ros.bagio import read_messages, stamp_to_ns
-from memo_ros.tools.evaluate import ESTIMATE_TOPICS, TRUTH_TOPICS, load_track, match_and_measure
+from memo_ros.ros.dds import ros_session
+from memo_ros.tools.evaluate import (
+    ESTIMATE_TOPICS,
+    TRUTH_TOPICS,
+    load_track,
+    match_and_measure,
+)
 from memo_ros.tools.simulate import simulate
 
-OUTPUTS = ('/memo/joint_states', '/memo/body_poses', '/memo/root_pose', '/memo/markers', '/memo/walker/measurement',
-           '/cam_street/person_box')
-INIT_LAST = 14          # Rohr's initialization images 2-14, counted from the first rectangle
+OUTPUTS = (
+    '/memo/joint_states',
+    '/memo/body_poses',
+    '/memo/root_pose',
+    '/memo/markers',
+    '/memo/walker/measurement',
+    '/cam_street/person_box',
+)
+INIT_LAST = 14  # Rohr's initialization images 2-14, counted from the first rectangle
 
 
 def _wait_for_graph(ros_env, published, subscribed, timeout=40.0):
     """Until the walker publishes its outputs, the recorder subscribes them and the graph takes the images."""
     with ros_session('graph_probe', ros_env.domain_id) as (node, _):
         deadline = time.monotonic() + timeout
-        while not (all(node.count_publishers(t) for t in published)
-                   and all(node.count_subscribers(t) for t in subscribed)):
+        while not (
+            all(node.count_publishers(t) for t in published)
+            and all(node.count_subscribers(t) for t in subscribed)
+        ):
             assert time.monotonic() < deadline, 'walker graph and recorder did not meet'
             time.sleep(0.2)
         time.sleep(1.0)
@@ -30,8 +44,11 @@ def _wait_for_graph(ros_env, published, subscribed, timeout=40.0):
 
 def _first_box(bag) -> int:
     """Stamp of the first frame in which contour_node saw the person (image 1 of the walker)."""
-    return min(stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_street/person_box'])
-               if len(m.message.polygon.points))
+    return min(
+        stamp_to_ns(m.message.header.stamp)
+        for m in read_messages(bag, ['/cam_street/person_box'])
+        if len(m.message.polygon.points)
+    )
 
 
 def _diagnostics(bag, name: str) -> dict[str, str]:
@@ -48,7 +65,9 @@ def _diagnostics(bag, name: str) -> dict[str, str]:
 def street_run(tmp_path_factory):
     """One street-walk bag at 640x480 and the default noise, through the launched graph, recorded."""
     import os
+
     from conftest import RosEnv, next_domain_id
+
     tmp = tmp_path_factory.mktemp('walker')
     sim = simulate('street-walk', tmp / 'street')
     env = RosEnv(next_domain_id())
@@ -57,16 +76,41 @@ def street_run(tmp_path_factory):
     try:
         launcher = env.start('launch', sim.studio, '--reliable-images')
         out, diag = tmp / 'estimate', tmp / 'diagnostics'
-        recorder = env.start('bag', 'record', '-o', out, *OUTPUTS, '--idle-timeout', 20, '--duration', 240,
-                             '--qos-depth', 500)
+        recorder = env.start(
+            'bag',
+            'record',
+            '-o',
+            out,
+            *OUTPUTS,
+            '--idle-timeout',
+            20,
+            '--duration',
+            240,
+            '--qos-depth',
+            500,
+        )
         diagnostics = env.start('bag', 'record', '-o', diag, '/diagnostics', '--duration', 300)
-        _wait_for_graph(env, OUTPUTS + ('/cam_street/edges',),
-                        OUTPUTS + ('/cam_street/image_raw', '/cam_street/edges'))
-        played = env.run('bag', 'play', sim.bag, '--topics', '/cam_street/image_raw', '/cam_street/camera_info',
-                         '--wait-for-subscribers', 1, '--rate', 0.5, timeout=120)   # slack for a busy CI host
+        _wait_for_graph(
+            env,
+            OUTPUTS + ('/cam_street/edges',),
+            OUTPUTS + ('/cam_street/image_raw', '/cam_street/edges'),
+        )
+        played = env.run(
+            'bag',
+            'play',
+            sim.bag,
+            '--topics',
+            '/cam_street/image_raw',
+            '/cam_street/camera_info',
+            '--wait-for-subscribers',
+            1,
+            '--rate',
+            0.5,
+            timeout=120,
+        )  # slack for a busy CI host
         assert played.returncode == 0, played.stderr
         recorder.communicate(timeout=240)
-        time.sleep(1.5)                                   # one more diagnostics period after the last frame
+        time.sleep(1.5)  # one more diagnostics period after the last frame
         diagnostics.send_signal(signal.SIGINT)
         diagnostics.communicate(timeout=30)
         alive = launcher.poll() is None
@@ -87,22 +131,40 @@ def test_walker_tracks_the_whole_street_walk(street_run):
     assert alive, f'the graph must keep running:\n{log}'
     truth = load_track(sim.bag, TRUTH_TOPICS)
     estimate = load_track(out, ESTIMATE_TOPICS)
-    frames = sorted(stamp_to_ns(m.message.header.stamp) for m in read_messages(out, ['/cam_street/person_box']))
-    assert len(frames) >= len(truth.origins) - 1             # contour_node may miss the image before camera_info
-    first_tracked = frames.index(_first_box(out)) + INIT_LAST - 1     # frame of initialization image 14
+    frames = sorted(
+        stamp_to_ns(m.message.header.stamp) for m in read_messages(out, ['/cam_street/person_box'])
+    )
+    assert (
+        len(frames) >= len(truth.origins) - 1
+    )  # contour_node may miss the image before camera_info
+    first_tracked = (
+        frames.index(_first_box(out)) + INIT_LAST - 1
+    )  # frame of initialization image 14
     # every frame from the end of initialization on has an estimate, with the frame's stamp
     assert sorted(estimate.origins) == frames[first_tracked:], log
     errors = match_and_measure(truth, estimate, 1_000_000)
     after = errors.stamps_ns >= frames[first_tracked]
     phase = errors.phase[after]
-    x_err = np.array([estimate.joints[s]['root_tx'] - truth.joints[s]['root_tx'] for s in errors.stamps_ns[after]])
-    y_err = np.array([estimate.joints[s]['root_tz'] - truth.joints[s]['root_tz'] for s in errors.stamps_ns[after]])
-    figures = (f'{after.sum()} frames: phase median {np.median(phase):.4f} max {phase.max():.4f}, '
-               f'X RMSE {100 * np.sqrt(np.mean(x_err ** 2)):.2f} cm, Y RMSE {100 * np.sqrt(np.mean(y_err ** 2)):.2f} cm')
+    x_err = np.array(
+        [
+            estimate.joints[s]['root_tx'] - truth.joints[s]['root_tx']
+            for s in errors.stamps_ns[after]
+        ]
+    )
+    y_err = np.array(
+        [
+            estimate.joints[s]['root_tz'] - truth.joints[s]['root_tz']
+            for s in errors.stamps_ns[after]
+        ]
+    )
+    figures = (
+        f'{after.sum()} frames: phase median {np.median(phase):.4f} max {phase.max():.4f}, '
+        f'X RMSE {100 * np.sqrt(np.mean(x_err**2)):.2f} cm, Y RMSE {100 * np.sqrt(np.mean(y_err**2)):.2f} cm'
+    )
     print(figures)
     assert np.median(phase) <= 0.02 and phase.max() <= 0.1, figures
-    assert np.sqrt(np.mean(x_err ** 2)) <= 0.03, figures
-    assert np.sqrt(np.mean(y_err ** 2)) <= 0.02, figures
+    assert np.sqrt(np.mean(x_err**2)) <= 0.03, figures
+    assert np.sqrt(np.mean(y_err**2)) <= 0.02, figures
 
 
 def test_walker_outputs_share_the_frame_stamps_and_frame(street_run):
@@ -125,11 +187,15 @@ def test_walker_counts_every_frame_in_diagnostics(street_run):
     sim, out, diag, _, _ = street_run
     values = _diagnostics(diag, 'walker_node')
     boxes = [m.message for m in read_messages(out, ['/cam_street/person_box'])]
-    frames = len(boxes)                                               # contour_node's frames (the first image
-    warm_up = sum(1 for b in boxes if not b.polygon.points)           # may precede its camera_info)
+    frames = len(boxes)  # contour_node's frames (the first image
+    warm_up = sum(1 for b in boxes if not b.polygon.points)  # may precede its camera_info)
     assert frames >= sim.frames - 1 and int(values['frames_in']) == frames, values
-    assert int(values['dropped.no_person']) == warm_up, values        # nobody before the background is learnt
-    assert int(values['initializing']) == INIT_LAST - 1, values       # image 1 skipped, 2-13 searched, 14 ends it
+    assert int(values['dropped.no_person']) == warm_up, (
+        values
+    )  # nobody before the background is learnt
+    assert int(values['initializing']) == INIT_LAST - 1, (
+        values
+    )  # image 1 skipped, 2-13 searched, 14 ends it
     assert int(values.get('started', 0)) == 1, values
     assert int(values['tracked']) == frames - warm_up - INIT_LAST, values
     assert values['state'] == 'tracking'
@@ -137,35 +203,55 @@ def test_walker_counts_every_frame_in_diagnostics(street_run):
 
 def test_kalman_estimates_are_smoother_than_the_measurements(street_run):
     _, out, _, _, _ = street_run
-    measured = {stamp_to_ns(m.message.header.stamp): dict(zip(m.message.name, m.message.position))
-                for m in read_messages(out, ['/memo/walker/measurement'])}
-    estimated = {stamp_to_ns(m.message.header.stamp): dict(zip(m.message.name, m.message.position))
-                 for m in read_messages(out, ['/memo/joint_states'])}
+    measured = {
+        stamp_to_ns(m.message.header.stamp): dict(zip(m.message.name, m.message.position))
+        for m in read_messages(out, ['/memo/walker/measurement'])
+    }
+    estimated = {
+        stamp_to_ns(m.message.header.stamp): dict(zip(m.message.name, m.message.position))
+        for m in read_messages(out, ['/memo/joint_states'])
+    }
     stamps = sorted(set(measured) & set(estimated))
     assert len(stamps) >= 40
     raw = np.array([[measured[s]['X'], measured[s]['pose']] for s in stamps])
     kalman = np.array([[estimated[s]['root_tx'], estimated[s]['gait_phase']] for s in stamps])
     step = lambda v: np.stack([np.diff(v[:, 0]), np.mod(np.diff(v[:, 1]) + 0.5, 1.0) - 0.5], 1)
     var_raw, var_kalman = step(raw).var(axis=0), step(kalman).var(axis=0)
-    print(f'frame-to-frame variance X: measurements {var_raw[0]:.3g} m^2, Kalman {var_kalman[0]:.3g} m^2; '
-          f'pose: measurements {var_raw[1]:.3g}, Kalman {var_kalman[1]:.3g}')
+    print(
+        f'frame-to-frame variance X: measurements {var_raw[0]:.3g} m^2, Kalman {var_kalman[0]:.3g} m^2; '
+        f'pose: measurements {var_raw[1]:.3g}, Kalman {var_kalman[1]:.3g}'
+    )
     assert np.all(var_kalman < var_raw), (var_raw, var_kalman)
 
 
 def test_bad_input_is_counted_with_its_reason_and_the_node_keeps_running(ros_env):
+    import subprocess
+    import sys
+
+    from conftest import ROOT
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import Point32, PolygonStamped
     from sensor_msgs.msg import PointCloud2
 
-    from memo_ros.core.edges import EDGE_DTYPE
-    from memo_ros.core.studio import studio_path
+    from memo_ros.core.formats.studio import studio_path
+    from memo_ros.core.vision.edges import EDGE_DTYPE
     from memo_ros.ros.pointcloud import array_to_pointcloud
-    from conftest import ROOT
-    import subprocess
-    import sys
-    process = subprocess.Popen([sys.executable, '-m', 'memo_ros.nodes.walker_node', '--ros-args', '--params-file',
-                                str(studio_path('street'))], env=ros_env, cwd=ROOT, text=True,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            '-m',
+            'memo_ros.nodes.walker_node',
+            '--ros-args',
+            '--params-file',
+            str(studio_path('street')),
+        ],
+        env=ros_env,
+        cwd=ROOT,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     ros_env.processes.append(process)
     with ros_session('walker_feeder', ros_env.domain_id) as (node, executor):
         box_pub = node.create_publisher(PolygonStamped, '/cam_street/person_box', 10)
@@ -211,14 +297,19 @@ def test_bad_input_is_counted_with_its_reason_and_the_node_keeps_running(ros_env
         # empty frames until the walker demonstrably receives both halves (discovery is asymmetric)
         stamps = iter(range(1, 1000))
         read_until(lambda: 'dropped.no_person' in values, publish=lambda: frame(next(stamps)))
-        collect(2.5)                                                 # reports (1 Hz) after the last of them
-        before = {k: int(values.get(k, 0)) for k in ('frames_in', 'dropped.no_person', 'dropped.bad_input')}
+        collect(2.5)  # reports (1 Hz) after the last of them
+        before = {
+            k: int(values.get(k, 0))
+            for k in ('frames_in', 'dropped.no_person', 'dropped.bad_input')
+        }
         rectangle = ((300, 160), (340, 160), (340, 320), (300, 320))
-        frame(2000)                                                  # nobody seen
-        frame(2001, rectangle[:3])                                   # a polygon that is not a rectangle
-        frame(2002, rectangle, np.zeros(2, [('x1', '<f4'), ('y1', '<f4')]))   # edges without their fields
-        frame(2003, rectangle)                                       # image 1: initialization starts
-        frame(2001)                                                  # stamp jumps back: reset, nobody seen
+        frame(2000)  # nobody seen
+        frame(2001, rectangle[:3])  # a polygon that is not a rectangle
+        frame(
+            2002, rectangle, np.zeros(2, [('x1', '<f4'), ('y1', '<f4')])
+        )  # edges without their fields
+        frame(2003, rectangle)  # image 1: initialization starts
+        frame(2001)  # stamp jumps back: reset, nobody seen
         grown = lambda key: int(values.get(key, 0)) - before.get(key, 0)
         read_until(lambda: grown('frames_in') == 5 and 'time_jump_resets' in values)
         assert grown('dropped.bad_input') == 2 and grown('dropped.no_person') == 2, values
@@ -228,9 +319,25 @@ def test_bad_input_is_counted_with_its_reason_and_the_node_keeps_running(ros_env
 
 def test_evaluate_plots_rohr_figures_26_27_and_19(street_run, tmp_path, capsys):
     from memo_ros.tools.cli import main
+
     sim, out, _, _, _ = street_run
-    assert main(['evaluate', '--truth', str(sim.bag), '--estimate', str(out), '--plots', str(tmp_path), '--json']) == 0
+    assert (
+        main(
+            [
+                'evaluate',
+                '--truth',
+                str(sim.bag),
+                '--estimate',
+                str(out),
+                '--plots',
+                str(tmp_path),
+                '--json',
+            ]
+        )
+        == 0
+    )
     import json
+
     summary = json.loads(capsys.readouterr().out)
     names = {p.rsplit('/', 1)[-1] for p in summary['plots']}
     assert {'walker_estimates.png', 'walker_contours.png', 'similarity_curve.png'} <= names

@@ -1,25 +1,38 @@
 """Rohr's walker in the ROS-free core: eq. 2-6, visible model contours, eq. 7-11, the two-lines rule, the
-Kalman filter (eq. 12-22) and the initialization on simulated street frames."""
+Kalman filter (eq. 12-22) and the initialization on simulated street frames.
+"""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from memo_ros.core.body import PART_NAMES, load_default_body
-from memo_ros.core.contours import ContourPipeline
-from memo_ros.core.imaging import ImagingOptions, background_image, compose_frame
-from memo_ros.core.metrics import phase_error
-from memo_ros.core.model_contours import visible_contours
-from memo_ros.core.render import render
-from memo_ros.core.scenarios import line_walk, street_camera
-from memo_ros.core.similarity import SimilarityParams, candidate_edges, similarity
-from memo_ros.core.walking_init import two_lines
-from memo_ros.core.walking_kalman import KalmanParams, WalkingKalman, transition
-from memo_ros.core.walking_position import position_from_box, projection_matrix, rohr_system
-from memo_ros.core.walking_search import WalkerModel, grid_offsets
-from memo_ros.core.walking_tracker import TRACKING, WalkingTracker
+from memo_ros.core.evaluation.metrics import phase_error
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.render import render
+from memo_ros.core.simulation.imaging import (
+    ImagingOptions,
+    background_image,
+    compose_frame,
+)
+from memo_ros.core.simulation.scenarios import line_walk, make_scenario, street_camera
+from memo_ros.core.vision.contours import ContourPipeline
+from memo_ros.core.walking.initialisation import two_lines
+from memo_ros.core.walking.kalman import KalmanParams, WalkingKalman, transition
+from memo_ros.core.walking.model_contours import visible_contours
+from memo_ros.core.walking.position import (
+    position_from_box,
+    projection_matrix,
+    rohr_system,
+)
+from memo_ros.core.walking.search import WalkerModel, grid_offsets
+from memo_ros.core.walking.similarity import (
+    SimilarityParams,
+    candidate_edges,
+    similarity,
+)
+from memo_ros.core.walking.tracker import TRACKING, WalkingTracker
 from memo_ros.nodes.contour_node import pipeline_settings
-from memo_ros.core.scenarios import make_scenario
 
 
 @pytest.fixture(scope='module')
@@ -46,17 +59,19 @@ def test_eq_2_6_shift_the_midpoints_so_the_last_three_rows_hold_exactly(camera):
     sole = np.array([-0.9, -0.2, 0.0])
     height = 1.74
     bottom, top = camera.project(np.array([sole, sole + [0.0, 0.0, height]]))
-    top_skewed = top + [3.0, 0.0]                # a rectangle whose top midpoint is off the vertical
+    top_skewed = top + [3.0, 0.0]  # a rectangle whose top midpoint is off the vertical
     T = projection_matrix(camera)
     t_star, b_star = rohr_system(T, bottom, top_skewed, height)
     x_star = np.linalg.lstsq(t_star, -b_star, rcond=None)[0]
-    assert np.abs((t_star @ x_star + b_star)[3:]).max() > 1e-3     # measured midpoints: inconsistent
+    assert np.abs((t_star @ x_star + b_star)[3:]).max() > 1e-3  # measured midpoints: inconsistent
     found = position_from_box(camera, bottom, top_skewed, height)
     t_star, b_star = rohr_system(T, found.bottom_px, found.top_px, height)
     x_star = np.concatenate([found.sole, [found.h_u, found.h_o]])
     residual = t_star @ x_star + b_star
-    assert np.abs(residual).max() < 1e-9 * np.abs(b_star).max()      # all six rows of eq. 6 hold
-    assert np.linalg.norm(found.bottom_px - bottom) < 2.0             # both midpoints moved by about half the skew
+    assert np.abs(residual).max() < 1e-9 * np.abs(b_star).max()  # all six rows of eq. 6 hold
+    assert (
+        np.linalg.norm(found.bottom_px - bottom) < 2.0
+    )  # both midpoints moved by about half the skew
     assert abs(found.sole[2]) < 0.01 and np.linalg.norm(found.sole[:2] - sole[:2]) < 0.03
 
 
@@ -70,12 +85,14 @@ def test_visible_contours_lie_on_label_boundaries_and_hide_the_far_arm(body, cam
     model = WalkerModel(body, camera)
     q = model.coordinates(0.0, 0.0, 0.0, 0.3)
     rotations, origins = body.forward_kinematics(q)
-    contours, rendering = visible_contours(camera, rotations, origins, body.semi_axes, body.lengths)
+    contours, rendering = visible_contours(
+        camera, rotations, origins, body.semi_axes, body.lengths
+    )
     a, b = contours.project(camera)
     mid = ((a + b) / 2.0)[0]
     label = rendering.label
     for (u, v), part in zip(np.rint(mid).astype(int), contours.part):
-        window = label[v - 2:v + 3, u - 2:u + 3]
+        window = label[v - 2 : v + 3, u - 2 : u + 3]
         assert (window == part + 1).any() and (window != part + 1).any(), PART_NAMES[part]
     length = np.linalg.norm(b - a, axis=-1)[0]
     visible = {p: length[contours.part == i].sum() for i, p in enumerate(PART_NAMES)}
@@ -88,25 +105,29 @@ def test_similarity_is_one_for_edges_on_the_contours_and_peaks_at_the_true_shift
     model = WalkerModel(body, camera)
     contours = model.contours(0.3, 0.0, 0.0, 0.6)
     a, b = contours.project(camera)
-    edges = np.hstack([a[0], b[0], np.ones((len(a[0]), 1))])           # perfect edge lines
+    edges = np.hstack([a[0], b[0], np.ones((len(a[0]), 1))])  # perfect edge lines
     params = SimilarityParams()
     pair = candidate_edges(a[0], b[0], edges, 0.0, params)
-    assert similarity(a, b, edges, *pair, params)[0] == pytest.approx(1.0, abs=1e-5)   # l = l_M, d = 0, dphi = 0
+    assert similarity(a, b, edges, *pair, params)[0] == pytest.approx(
+        1.0, abs=1e-5
+    )  # l = l_M, d = 0, dphi = 0
     dx = grid_offsets(0.1, 0.02)
     offsets = np.stack([dx, np.zeros_like(dx), np.zeros_like(dx)], 1)
     sa, sb = contours.project(camera, offsets)
     pair = candidate_edges(a[0], b[0], edges, 15.0, params)
     scores = similarity(sa, sb, edges, *pair, params)
-    assert np.argmax(scores) == len(dx) // 2 and np.all(np.diff(scores[len(dx) // 2:]) < 0)
+    assert np.argmax(scores) == len(dx) // 2 and np.all(np.diff(scores[len(dx) // 2 :]) < 0)
 
 
 def test_eq_7_for_one_cut_edge():
     params = SimilarityParams(c_l=0.4, c_d=0.5, c_r=0.2, sigma_phi=0.25)
-    a, b = np.array([[[0.0, 0.0]]]), np.array([[[50.0, 0.0]]])             # model contour, l_M = 50
-    edges = np.array([[30.0, 2.0, 80.0, 2.0, 1.0]])                       # parallel, 2 px away, overlaps 20 px
+    a, b = np.array([[[0.0, 0.0]]]), np.array([[[50.0, 0.0]]])  # model contour, l_M = 50
+    edges = np.array([[30.0, 2.0, 80.0, 2.0, 1.0]])  # parallel, 2 px away, overlaps 20 px
     s = similarity(a, b, edges, np.array([0]), np.array([0]), params)[0]
     l, l_m, d, r = 20.0, 50.0, 2.0, 10.0
-    expected = l * np.exp(-0.5 * (((l_m - l) / (0.4 * l_m)) ** 2 + (d / (0.5 * r)) ** 2)) / l_m   # eq. 7, 11
+    expected = (
+        l * np.exp(-0.5 * (((l_m - l) / (0.4 * l_m)) ** 2 + (d / (0.5 * r)) ** 2)) / l_m
+    )  # eq. 7, 11
     assert s == pytest.approx(expected, rel=1e-5)
 
 
@@ -124,22 +145,32 @@ def test_two_lines_rule_by_count_and_by_similarity():
     poses = np.where(k % 2 == 0, flipped, true)
     sims = np.where(k % 2 == 0, 0.2, 0.3)
     choice = two_lines(k, poses, sims)
-    assert choice.rule == 'similarity' and phase_error(choice.phase0 + choice.slope * 14, true[-1]) < 1e-6
+    assert (
+        choice.rule == 'similarity'
+        and phase_error(choice.phase0 + choice.slope * 14, true[-1]) < 1e-6
+    )
 
 
 def test_kalman_eq_12_22_holds_depth_and_smooths(body):
     phi = transition(1.0)
-    assert np.allclose(phi @ np.arange(8.0), [1, 1, 5, 3, 9, 5, 13, 7])          # eq. 19
+    assert np.allclose(phi @ np.arange(8.0), [1, 1, 5, 3, 9, 5, 13, 7])  # eq. 19
     rng = np.random.default_rng(3)
     f = WalkingKalman(np.array([0.0, 0.064, 0.0, 0.0, 11.0, 0.0, 0.0, 0.04]), KalmanParams())
     raw, smooth = [], []
     for k in range(1, 60):
         f.predict()
-        z = np.array([0.064 * k + rng.normal(0, 0.02), rng.normal(0, 0.01), 12.0, 0.04 * k + rng.normal(0, 0.02)])
+        z = np.array(
+            [
+                0.064 * k + rng.normal(0, 0.02),
+                rng.normal(0, 0.01),
+                12.0,
+                0.04 * k + rng.normal(0, 0.02),
+            ]
+        )
         p, _ = f.update(z)
         raw.append(z[[0, 3]])
         smooth.append(p[[0, 6]])
-        assert p[4] == 11.0 and p[3] == 0.0                                        # Z and Y' held
+        assert p[4] == 11.0 and p[3] == 0.0  # Z and Y' held
     raw, smooth = np.diff(raw, axis=0), np.diff(smooth, axis=0)
     assert np.all(smooth.var(axis=0) < 0.2 * raw.var(axis=0))
 
@@ -155,7 +186,9 @@ def _street_frames(body, camera, seed: int, images: int):
     options = ImagingOptions(seed=seed)
     frames = []
     for k in range(images):
-        rendering = render(camera, *body.forward_kinematics(q[k]), body.semi_axes, body.lengths, normals=True)
+        rendering = render(
+            camera, *body.forward_kinematics(q[k]), body.semi_axes, body.lengths, normals=True
+        )
         frames.append(compose_frame(background, rendering, camera, options, k, rng))
     return np.clip(np.rint(background), 0, 255).astype(np.uint8), frames, phase
 
@@ -171,11 +204,16 @@ def test_initialization_picks_the_right_half_cycle(body, camera):
         for k, grey in enumerate(frames):
             out = pipeline.process(grey)
             x, y, w, h = out.box
-            result = tracker.step(1_000_000_000 + k * 40_000_000,
-                                  np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]]), out.edges)
+            result = tracker.step(
+                1_000_000_000 + k * 40_000_000,
+                np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]]),
+                out.edges,
+            )
         assert tracker.state == TRACKING
         error = float(phase_error(np.mod(result.estimate[6], 1.0), phase[-1]))
         right += error < 0.1
-        report.append(f'seed {seed}: phase error {error:.3f} ({result.choice.rule}, {result.choice.counts})')
+        report.append(
+            f'seed {seed}: phase error {error:.3f} ({result.choice.rule}, {result.choice.counts})'
+        )
     print(f'initialization: right half-cycle on {right} of 10 seeds\n' + '\n'.join(report))
     assert right >= 9, '\n'.join(report)

@@ -5,6 +5,7 @@ tracker): numpy's BLAS and OpenCV get one thread each, unless the environment sa
 processes do not fight over the cores with idle-spinning worker threads (the tracker's CPU per frame fell
 from about 100 ms to about 25 ms on two shared cores).
 """
+
 import os
 
 for _variable in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):

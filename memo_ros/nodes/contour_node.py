@@ -15,88 +15,193 @@ be learnt.  ``background_bag`` lets the sequence segmenter learn the
 background from a recording of the scene (the one being replayed, or a clip
 taken before) at start-up instead of from the first live frames.
 """
+
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass
+import os
 from pathlib import Path
+import sys
 
 import cv2
-import numpy as np
 from geometry_msgs.msg import Point32, PolygonStamped
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from memo_ros.core.background_model import BackgroundModel, background_from_frames, image_message_to_frame
-from memo_ros.core.contours import ContourPipeline, PipelineSettings
-from memo_ros.core.encodings import ImageFormatError, image_message_to_grey
-from memo_ros.core.tracked_region import body_region, tracked_person
+from memo_ros.core.vision.background import BackgroundModel, background_from_frames
+from memo_ros.core.vision.contours import ContourPipeline, PipelineSettings
+from memo_ros.core.vision.encodings import ImageFormatError
+from memo_ros.core.vision.tracked_region import body_region, tracked_person
 from memo_ros.ros.body_messages import MARKERS_TOPIC, tracked_body_from_markers
 from memo_ros.ros.health import NodeHealth
+from memo_ros.ros.images import image_message_to_frame, image_message_to_grey
 from memo_ros.ros.lost_frames import LostFrameCounter
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
-
 PARAMS = (
-    Param('segmenter', 'background', 'person segmentation: a static background learnt over the first frames, '
-          "Rohr's change detection against the previous frame, or a background learnt from a sequence that "
-          'never shows the scene empty (colour, person masked out, kept learning)',
-          choices=('background', 'change', 'sequence')),
-    Param('threshold', 4.0, 'threshold T of Rohr eq. 1, grey levels, raised to the frame\'s noise floor '
-          '(about 4 against a background, 12 against the previous frame)', 0.5, 255.0),
-    Param('background_frames', 10, 'frames the background segmenter learns from before it segments (sequence, '
-          'with background_bag: at most this many, spread over the recording)', 1, 10000),
-    Param('background_bag', '', 'sequence segmenter: a rosbag2 with this camera\'s image_raw of the same scene '
-          '(the recording being replayed, or a clip taken before); the background is learnt from it at start-up '
-          'instead of from the first live frames', read_only=True),
-    Param('background_track', '', 'sequence segmenter with background_bag: the tracker\'s output bag of a first '
-          'pass over that recording; its /memo/markers body, grown by background_track_margin, is never learnt '
-          'from (where the person stands still in most frames the background would show him)', read_only=True),
-    Param('background_track_margin', 4.0, 'background_track: the tracked body\'s projection grown by this many '
-          'pixels', 0.0, 200.0, read_only=True),
-    Param('learn_margin', 6, 'sequence segmenter: pixels around the person and the tracked body not learnt from',
-          0, 200),
-    Param('roi_margin', 20.0, 'tracked region: the tracked body\'s projection grown by this many pixels', 0.0, 500.0),
-    Param('roi_max_age', 0.5, 'tracked region: /memo/markers older than the image by more than this (stamp time) '
-          'are not used, s', 0.0, 3600.0),
-    Param('roi_wait', 0.0, "tracked region: longest wait for the tracker's body of the previous image before an "
-          'image is segmented, s (0: segment at once with the newest body; bag replay waits so that the result '
-          'does not depend on which message DDS delivers first)', 0.0, 10.0),
-    Param('background_file', '', 'PNG where the learnt background is saved and, when it exists at start, loaded '
-          'from instead of learning (a restarted node must not learn the person into it); empty: off',
-          read_only=True),
-    Param('cleanup_delete_below', 3, 'cleanup: a flagged pixel with fewer flagged 3x3 neighbours is deleted',
-          0, 8),
-    Param('cleanup_fill_above', 5, 'cleanup: an unflagged pixel with more flagged 3x3 neighbours is marked', 0, 8),
+    Param(
+        'segmenter',
+        'background',
+        'person segmentation: a static background learnt over the first frames, '
+        "Rohr's change detection against the previous frame, or a background learnt from a sequence that "
+        'never shows the scene empty (colour, person masked out, kept learning)',
+        choices=('background', 'change', 'sequence'),
+    ),
+    Param(
+        'threshold',
+        4.0,
+        "threshold T of Rohr eq. 1, grey levels, raised to the frame's noise floor "
+        '(about 4 against a background, 12 against the previous frame)',
+        0.5,
+        255.0,
+    ),
+    Param(
+        'background_frames',
+        10,
+        'frames the background segmenter learns from before it segments (sequence, '
+        'with background_bag: at most this many, spread over the recording)',
+        1,
+        10000,
+    ),
+    Param(
+        'background_bag',
+        '',
+        "sequence segmenter: a rosbag2 with this camera's image_raw of the same scene "
+        '(the recording being replayed, or a clip taken before); the background is learnt from it at start-up '
+        'instead of from the first live frames',
+        read_only=True,
+    ),
+    Param(
+        'background_track',
+        '',
+        "sequence segmenter with background_bag: the tracker's output bag of a first "
+        'pass over that recording; its /memo/markers body, grown by background_track_margin, is never learnt '
+        'from (where the person stands still in most frames the background would show him)',
+        read_only=True,
+    ),
+    Param(
+        'background_track_margin',
+        4.0,
+        "background_track: the tracked body's projection grown by this many pixels",
+        0.0,
+        200.0,
+        read_only=True,
+    ),
+    Param(
+        'learn_margin',
+        6,
+        'sequence segmenter: pixels around the person and the tracked body not learnt from',
+        0,
+        200,
+    ),
+    Param(
+        'roi_margin',
+        20.0,
+        "tracked region: the tracked body's projection grown by this many pixels",
+        0.0,
+        500.0,
+    ),
+    Param(
+        'roi_max_age',
+        0.5,
+        'tracked region: /memo/markers older than the image by more than this (stamp time) '
+        'are not used, s',
+        0.0,
+        3600.0,
+    ),
+    Param(
+        'roi_wait',
+        0.0,
+        "tracked region: longest wait for the tracker's body of the previous image before an "
+        'image is segmented, s (0: segment at once with the newest body; bag replay waits so that the result '
+        'does not depend on which message DDS delivers first)',
+        0.0,
+        10.0,
+    ),
+    Param(
+        'background_file',
+        '',
+        'PNG where the learnt background is saved and, when it exists at start, loaded '
+        'from instead of learning (a restarted node must not learn the person into it); empty: off',
+        read_only=True,
+    ),
+    Param(
+        'cleanup_delete_below',
+        3,
+        'cleanup: a flagged pixel with fewer flagged 3x3 neighbours is deleted',
+        0,
+        8,
+    ),
+    Param(
+        'cleanup_fill_above',
+        5,
+        'cleanup: an unflagged pixel with more flagged 3x3 neighbours is marked',
+        0,
+        8,
+    ),
     Param('cleanup_max_iterations', 10, 'cleanup: repetitions until stable (upper bound)', 1, 100),
     Param('min_region_area', 200, 'smallest kept region, pixels', 1, 10_000_000),
-    Param('keep_regions', 'all', 'keep the largest region, all regions above the minimum area, or those '
-          'overlapping the tracked body (else the previous frame\'s person, else the largest)',
-          choices=('largest', 'all', 'tracked')),
+    Param(
+        'keep_regions',
+        'all',
+        'keep the largest region, all regions above the minimum area, or those '
+        "overlapping the tracked body (else the previous frame's person, else the largest)",
+        choices=('largest', 'all', 'tracked'),
+    ),
     Param('contour_step', 2.0, 'arc-length step between contour samples, pixels', 0.5, 50.0),
-    Param('smoothing', 2.0, 'smoothing of the closed contour: Gaussian low-pass sigma along the arc, pixels', 0.0, 50.0),
-    Param('edge_low', 30.0, 'edge detector: low hysteresis threshold (gradient magnitude)', 0.0, 2000.0),
-    Param('edge_high', 80.0, 'edge detector: high hysteresis threshold (gradient magnitude)', 0.0, 2000.0),
+    Param(
+        'smoothing',
+        2.0,
+        'smoothing of the closed contour: Gaussian low-pass sigma along the arc, pixels',
+        0.0,
+        50.0,
+    ),
+    Param(
+        'edge_low',
+        30.0,
+        'edge detector: low hysteresis threshold (gradient magnitude)',
+        0.0,
+        2000.0,
+    ),
+    Param(
+        'edge_high',
+        80.0,
+        'edge detector: high hysteresis threshold (gradient magnitude)',
+        0.0,
+        2000.0,
+    ),
     Param('min_edge_length', 6.0, 'shortest edge line kept, pixels', 1.0, 1000.0),
-    Param('publish_debug_mask', False, 'also publish the cleaned person mask on debug/mask (mono8)'),
-    Param('reliable_images', False, 'subscribe images reliably (bag replay) instead of the sensor-data '
-          'profile (best effort)', read_only=True),
-    Param('reliable_camera_info', True, 'subscribe camera_info reliably; set false for a driver that publishes '
-          'it best effort (a reliable subscription cannot match a best-effort publisher)', read_only=True),
+    Param(
+        'publish_debug_mask', False, 'also publish the cleaned person mask on debug/mask (mono8)'
+    ),
+    Param(
+        'reliable_images',
+        False,
+        'subscribe images reliably (bag replay) instead of the sensor-data profile (best effort)',
+        read_only=True,
+    ),
+    Param(
+        'reliable_camera_info',
+        True,
+        'subscribe camera_info reliably; set false for a driver that publishes '
+        'it best effort (a reliable subscription cannot match a best-effort publisher)',
+        read_only=True,
+    ),
     Param('image_queue_depth', 5, 'image subscription queue depth', 1, 1000, read_only=True),
 )
-INFO_QUEUE_DEPTH = 100      # camera_info is small: a deep queue keeps every frame's announcement
+INFO_QUEUE_DEPTH = 100  # camera_info is small: a deep queue keeps every frame's announcement
 
 
 @dataclass
 class PendingImage:
     """An accepted image waiting (roi_wait) for the tracked body of the image before it."""
+
     msg: Image
     image: np.ndarray
     stamp: int
@@ -108,20 +213,43 @@ def pipeline_settings(params: dict) -> PipelineSettings:
     """The core pipeline's settings from this node's parameters (defaults for any not given)."""
     p = {q.name: q.default for q in PARAMS} | dict(params)
     return PipelineSettings(
-        segmenter=p['segmenter'], threshold=p['threshold'], background_frames=p['background_frames'],
-        delete_below=p['cleanup_delete_below'], fill_above=p['cleanup_fill_above'],
-        max_iterations=p['cleanup_max_iterations'], min_area=p['min_region_area'],
-        keep=p['keep_regions'], learn_margin=p['learn_margin'], contour_step=p['contour_step'], smoothing=p['smoothing'],
-        edge_low=p['edge_low'], edge_high=p['edge_high'], min_edge_length=p['min_edge_length'])
+        segmenter=p['segmenter'],
+        threshold=p['threshold'],
+        background_frames=p['background_frames'],
+        delete_below=p['cleanup_delete_below'],
+        fill_above=p['cleanup_fill_above'],
+        max_iterations=p['cleanup_max_iterations'],
+        min_area=p['min_region_area'],
+        keep=p['keep_regions'],
+        learn_margin=p['learn_margin'],
+        contour_step=p['contour_step'],
+        smoothing=p['smoothing'],
+        edge_low=p['edge_low'],
+        edge_high=p['edge_high'],
+        min_edge_length=p['min_edge_length'],
+    )
 
 
-def recording_background(frames: list[np.ndarray], stamps: list[int], camera, params: dict,
-                         bodies: dict[int, tuple] | None = None) -> BackgroundModel:
+def recording_background(
+    frames: list[np.ndarray],
+    stamps: list[int],
+    camera,
+    params: dict,
+    bodies: dict[int, tuple] | None = None,
+) -> BackgroundModel:
     """The sequence segmenter's background of a recording (background_bag): at most background_frames of
-    ``frames``, without the ``bodies`` a first pass tracked at ``stamps`` (background_track) when given."""
-    person_at = None if bodies is None else tracked_person(camera, bodies, stamps, frames[0].shape[:2],
-                                                           params['background_track_margin'])
-    return background_from_frames(frames, params['background_frames'], params['threshold'], person_at)
+    ``frames``, without the ``bodies`` a first pass tracked at ``stamps`` (background_track) when given.
+    """
+    person_at = (
+        None
+        if bodies is None
+        else tracked_person(
+            camera, bodies, stamps, frames[0].shape[:2], params['background_track_margin']
+        )
+    )
+    return background_from_frames(
+        frames, params['background_frames'], params['threshold'], person_at
+    )
 
 
 class ContourNode(Node):
@@ -138,19 +266,29 @@ class ContourNode(Node):
         self.pipeline = self._new_pipeline()
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
-        self.markers: tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None
+        self.markers: tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = (
+            None
+        )
         self.pending: PendingImage | None = None
         self.lost = LostFrameCounter()
         self._saved_background = None
         self._load_background()
         # sensor-data profile (best effort) for live cameras, reliable for bag replay
         image_qos = QoSProfile(
-            reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_images'] else ReliabilityPolicy.BEST_EFFORT,
-            history=HistoryPolicy.KEEP_LAST, depth=self.params['image_queue_depth'])
+            reliability=ReliabilityPolicy.RELIABLE
+            if self.params['reliable_images']
+            else ReliabilityPolicy.BEST_EFFORT,
+            history=HistoryPolicy.KEEP_LAST,
+            depth=self.params['image_queue_depth'],
+        )
         self.create_subscription(Image, 'image_raw', self._on_image, image_qos)
         info_qos = QoSProfile(
-            reliability=ReliabilityPolicy.RELIABLE if self.params['reliable_camera_info'] else ReliabilityPolicy.BEST_EFFORT,
-            history=HistoryPolicy.KEEP_LAST, depth=INFO_QUEUE_DEPTH)
+            reliability=ReliabilityPolicy.RELIABLE
+            if self.params['reliable_camera_info']
+            else ReliabilityPolicy.BEST_EFFORT,
+            history=HistoryPolicy.KEEP_LAST,
+            depth=INFO_QUEUE_DEPTH,
+        )
         self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, info_qos)
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
@@ -177,10 +315,13 @@ class ContourNode(Node):
             return None
         try:
             from memo_ros.ros.studio_params import studio_from_node
+
             return studio_from_node(self).camera(self.camera_name)
         except (KeyError, ValueError) as exc:
-            self.get_logger().warning(f'no studio calibration for {self.camera_name} ({exc}): the tracked body '
-                                      "is not used; regions follow the previous frame's person")
+            self.get_logger().warning(
+                f'no studio calibration for {self.camera_name} ({exc}): the tracked body '
+                "is not used; regions follow the previous frame's person"
+            )
             return None
 
     def _learn_background_from_bag(self):
@@ -189,20 +330,30 @@ class ContourNode(Node):
         if not path or self.params['segmenter'] != 'sequence':
             return None
         from memo_ros.ros.bagio import read_messages, tracked_bodies
+
         topic = f'/{self.camera_name}/image_raw'
         messages = [m.message for m in read_messages(path, [topic])]
         if not messages:
             raise ValueError(f'background_bag {path} has no {topic} images')
         track = self.params['background_track']
         if track and self.camera is None:
-            raise ValueError(f'background_track needs {self.camera_name}\'s calibration in the studio')
+            raise ValueError(
+                f"background_track needs {self.camera_name}'s calibration in the studio"
+            )
         frames = [image_message_to_frame(m) for m in messages]
-        model = recording_background(frames, [stamp_to_ns(m.header.stamp) for m in messages], self.camera,
-                                     self.params, tracked_bodies(track) if track else None)
-        self.get_logger().info(f'background learnt from {min(len(frames), self.params["background_frames"])} of '
-                               f'{len(frames)} images of {path}' + (f' without the body tracked in {track}' if track
-                                                                   else '') +
-                               f': {int(model.unseen.sum())} pixels never seen, noise {model.noise:.1f}')
+        model = recording_background(
+            frames,
+            [stamp_to_ns(m.header.stamp) for m in messages],
+            self.camera,
+            self.params,
+            tracked_bodies(track) if track else None,
+        )
+        self.get_logger().info(
+            f'background learnt from {min(len(frames), self.params["background_frames"])} of '
+            f'{len(frames)} images of {path}'
+            + (f' without the body tracked in {track}' if track else '')
+            + f': {int(model.unseen.sum())} pixels never seen, noise {model.noise:.1f}'
+        )
         return model
 
     def _new_pipeline(self) -> ContourPipeline:
@@ -222,13 +373,20 @@ class ContourNode(Node):
 
     def _waits_for_markers(self, previous_ns: int | None) -> bool:
         """roi_wait: whether an image must wait for the tracked body of the image before it (only once the
-        tracker has sent a body: without a tracker running, images never wait)."""
-        return (self.params['roi_wait'] > 0 and self.camera is not None and self.markers is not None
-                and previous_ns is not None and self.markers[0] < previous_ns)
+        tracker has sent a body: without a tracker running, images never wait).
+        """
+        return (
+            self.params['roi_wait'] > 0
+            and self.camera is not None
+            and self.markers is not None
+            and previous_ns is not None
+            and self.markers[0] < previous_ns
+        )
 
     def _segment_pending(self, reason: str | None = None, message: str = '') -> None:
         """Segment the image that waited for the tracked body: it came, or (``reason`` noted) the wait ran out
-        or another image came first."""
+        or another image came first.
+        """
         pending, self.pending = self.pending, None
         pending.timer.cancel()
         self.destroy_timer(pending.timer)
@@ -253,11 +411,16 @@ class ContourNode(Node):
             return
         background = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
         if background is None:
-            self.health.note('background_unreadable', f'background_file {path} is not a readable image: learning')
+            self.health.note(
+                'background_unreadable',
+                f'background_file {path} is not a readable image: learning',
+            )
             return
         self.pipeline.set_background(background)
         self._saved_background = self.pipeline.background
-        self.get_logger().info(f'background loaded from {path} ({background.shape[1]}x{background.shape[0]})')
+        self.get_logger().info(
+            f'background loaded from {path} ({background.shape[1]}x{background.shape[0]})'
+        )
 
     def _save_background(self) -> None:
         """Write the freshly learnt background (atomically) so a restart can load it."""
@@ -272,41 +435,60 @@ class ContourNode(Node):
                 raise OSError('cv2.imwrite failed')
             os.replace(tmp, path)
         except OSError as exc:
-            self.health.note('background_not_saved', f'could not save the background to {path}: {exc}')
+            self.health.note(
+                'background_not_saved', f'could not save the background to {path}: {exc}'
+            )
             return
         self.get_logger().info(f'background learnt and saved to {path}')
 
     # ------------------------------------------------------------ inputs
     def _on_camera_info(self, msg: CameraInfo) -> None:
         if self.camera_info is None:
-            self.get_logger().info(f'camera_info received: {msg.width}x{msg.height}, {msg.distortion_model}')
+            self.get_logger().info(
+                f'camera_info received: {msg.width}x{msg.height}, {msg.distortion_model}'
+            )
         self.camera_info = msg
         for _ in self.lost.announced(stamp_to_ns(msg.header.stamp)):
-            self.health.drop('image_lost', 'camera_info came but its image did not (lost in transport or '
-                                           'overwritten in a full queue)')
+            self.health.drop(
+                'image_lost',
+                'camera_info came but its image did not (lost in transport or '
+                'overwritten in a full queue)',
+            )
 
     def _on_image(self, msg: Image) -> None:
         self.health.count('frames_in')
         stamp = stamp_to_ns(msg.header.stamp)
-        if self.pending is not None:          # another image: the waiting one goes first, with what there is
-            self._segment_pending('roi_wait_overtaken', 'an image came before the tracker\'s body of the one '
-                                                        'waiting for it: segmented with an older body')
+        if (
+            self.pending is not None
+        ):  # another image: the waiting one goes first, with what there is
+            self._segment_pending(
+                'roi_wait_overtaken',
+                "an image came before the tracker's body of the one "
+                'waiting for it: segmented with an older body',
+            )
         if self.camera_info is None:
             # contours are in pixels and need no intrinsics: go on (the size check waits for camera_info)
-            self.health.note('no_camera_info', 'image before any camera_info: processed without the size check')
+            self.health.note(
+                'no_camera_info', 'image before any camera_info: processed without the size check'
+            )
         if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
             self.pipeline = self._new_pipeline()
             self.markers = None
             self.lost.reset()
             self._saved_background = None
             self._load_background()
-            self.health.note('time_jump_resets', 'timestamps went backwards (bag loop?): frame history reset')
+            self.health.note(
+                'time_jump_resets', 'timestamps went backwards (bag loop?): frame history reset'
+            )
         elif self.last_stamp_ns is not None and stamp == self.last_stamp_ns:
             self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
             return
         for _ in self.lost.received(stamp):
-            self.health.drop('image_lost', 'camera_info came but its image did not (lost in transport or '
-                                           'overwritten in a full queue)')
+            self.health.drop(
+                'image_lost',
+                'camera_info came but its image did not (lost in transport or '
+                'overwritten in a full queue)',
+            )
         try:
             image = image_message_to_frame(msg) if self.colour else image_message_to_grey(msg)
         except ImageFormatError as exc:
@@ -314,15 +496,28 @@ class ContourNode(Node):
             return
         info = self.camera_info
         if info is not None and (msg.width, msg.height) != (info.width, info.height):
-            self.health.drop('size_mismatch', f'image {msg.width}x{msg.height} differs from camera_info '
-                                              f'{info.width}x{info.height}')
+            self.health.drop(
+                'size_mismatch',
+                f'image {msg.width}x{msg.height} differs from camera_info '
+                f'{info.width}x{info.height}',
+            )
             return
         previous_ns, self.last_stamp_ns = self.last_stamp_ns, stamp
         if self._waits_for_markers(previous_ns):
-            self.pending = PendingImage(msg, image, stamp, previous_ns, self.create_timer(
-                self.params['roi_wait'], lambda: self._segment_pending(
-                    'roi_wait_timeouts', "the tracker's body of the previous image did not come within roi_wait: "
-                                         'segmented with an older one')))
+            self.pending = PendingImage(
+                msg,
+                image,
+                stamp,
+                previous_ns,
+                self.create_timer(
+                    self.params['roi_wait'],
+                    lambda: self._segment_pending(
+                        'roi_wait_timeouts',
+                        "the tracker's body of the previous image did not come within roi_wait: "
+                        'segmented with an older one',
+                    ),
+                ),
+            )
             return
         self._segment(msg, image, stamp)
 
@@ -330,7 +525,10 @@ class ContourNode(Node):
         """Segment one accepted image within the tracked region and publish its contours."""
         self.pipeline.set_roi(self._tracked_region(stamp, image.shape[:2]))
         result = self.pipeline.process(image)
-        if self.pipeline.background is not None and self.pipeline.background is not self._saved_background:
+        if (
+            self.pipeline.background is not None
+            and self.pipeline.background is not self._saved_background
+        ):
             self._save_background()
         self._publish(msg, result)
         self.health.count('processed')
@@ -348,8 +546,10 @@ class ContourNode(Node):
         box.header = image.header
         if result.box is not None:
             x, y, w, h = (float(v) for v in result.box)
-            box.polygon.points = [Point32(x=px, y=py, z=0.0)
-                                  for px, py in ((x, y), (x + w, y), (x + w, y + h), (x, y + h))]
+            box.polygon.points = [
+                Point32(x=px, y=py, z=0.0)
+                for px, py in ((x, y), (x + w, y), (x + w, y + h), (x, y + h))
+            ]
         self.pub_box.publish(box)
         if self.params['publish_debug_mask']:
             mask = Image()

@@ -12,24 +12,31 @@ older than t by more than ``camera_timeout``, or whose contour_node stopped
 delivering (``contours_timeout``), is excluded until it comes back
 (stamps, not arrival times, so a bag replays alike at any rate).
 """
+
 from __future__ import annotations
 
+from collections import deque
 import struct
 import sys
 import time
-from collections import deque
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 
-from memo_ros.core.body import PART_NAMES
-from memo_ros.core.motion import EXTRA_STATE_NAMES, ConstantVelocity
-from memo_ros.core.selection import (MAX_CAMERAS, NORMS, Assignment, CameraLiveness, CameraSelector,
-                                     SelectionSettings)
-from memo_ros.core.studio import Studio
+from memo_ros.core.formats.studio import Studio
+from memo_ros.core.geometry.body import PART_NAMES
+from memo_ros.core.multiview.motion import EXTRA_STATE_NAMES, ConstantVelocity
+from memo_ros.core.multiview.selection import (
+    MAX_CAMERAS,
+    NORMS,
+    Assignment,
+    CameraLiveness,
+    CameraSelector,
+    SelectionSettings,
+)
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
@@ -40,52 +47,107 @@ from memo_ros.ros.studio_params import studio_from_node
 ASSIGNMENT_TOPIC = '/memo/camera_assignment'
 POSTERIOR_TOPIC = '/memo/joint_states'
 POSTERIOR_HISTORY = 20
-K_TOLERANCE = 1e-6          # relative difference allowed between a camera_info's K and the studio's
+K_TOLERANCE = 1e-6  # relative difference allowed between a camera_info's K and the studio's
 
 PARAMS = (
-    Param('vi_threshold', 0.0, 'a part is visible from a camera when its visibility index (visible / unoccluded '
-          'projected area) is at least this; 0: every camera it projects into (Kakadiaris §4 uses 0.2, which '
-          'drops partial views the tracker needs)', 0.0, 1.0),
-    Param('max_cameras_per_part', 0, 'most cameras assigned to one part, best observability first; 0: every '
-          'visible camera', 0, MAX_CAMERAS),
-    Param('render_scale', 0.25, 'resolution of the visibility label images as a fraction of each camera\'s',
-          0.05, 1.0),
-    Param('observability_norm', 'norm_of_sum', "how a part's predicted contour-node image motion is combined: "
-          "the paper's norm of the sum, or the sum of the norms (does not cancel for a part spinning about its "
-          'own axis)', choices=NORMS),
-    Param('camera_timeout', 0.5, 'a camera whose newest camera_info and contours stamps are older than the frame by '
-          'more than this many seconds is excluded until it comes back', 0.01, 3600.0),
-    Param('require_contours', True, 'a camera counts alive only while its contour_node delivers too; false: its '
-          'camera_info alone keeps it alive (the selector run without contour nodes)'),
-    Param('contours_timeout', 2.0, "with require_contours: a camera whose contour_node delivered nothing for this "
-          'long (wall time) while its camera_info went on for camera_timeout is excluded, s', 0.05, 3600.0),
-    Param('max_posterior_age', 0.5, 'a /memo/joint_states posterior older than the frame by more than this many '
-          'seconds is not predicted from: every live camera is assigned to every part instead', 0.0, 3600.0),
-    Param('summary_every', 30, 'log a one-line summary at info level every this many frames (each frame\'s '
-          'selection is logged at debug level)', 1, 1_000_000),
+    Param(
+        'vi_threshold',
+        0.0,
+        'a part is visible from a camera when its visibility index (visible / unoccluded '
+        'projected area) is at least this; 0: every camera it projects into (Kakadiaris §4 uses 0.2, which '
+        'drops partial views the tracker needs)',
+        0.0,
+        1.0,
+    ),
+    Param(
+        'max_cameras_per_part',
+        0,
+        'most cameras assigned to one part, best observability first; 0: every visible camera',
+        0,
+        MAX_CAMERAS,
+    ),
+    Param(
+        'render_scale',
+        0.25,
+        "resolution of the visibility label images as a fraction of each camera's",
+        0.05,
+        1.0,
+    ),
+    Param(
+        'observability_norm',
+        'norm_of_sum',
+        "how a part's predicted contour-node image motion is combined: "
+        "the paper's norm of the sum, or the sum of the norms (does not cancel for a part spinning about its "
+        'own axis)',
+        choices=NORMS,
+    ),
+    Param(
+        'camera_timeout',
+        0.5,
+        'a camera whose newest camera_info and contours stamps are older than the frame by '
+        'more than this many seconds is excluded until it comes back',
+        0.01,
+        3600.0,
+    ),
+    Param(
+        'require_contours',
+        True,
+        'a camera counts alive only while its contour_node delivers too; false: its '
+        'camera_info alone keeps it alive (the selector run without contour nodes)',
+    ),
+    Param(
+        'contours_timeout',
+        2.0,
+        'with require_contours: a camera whose contour_node delivered nothing for this '
+        'long (wall time) while its camera_info went on for camera_timeout is excluded, s',
+        0.05,
+        3600.0,
+    ),
+    Param(
+        'max_posterior_age',
+        0.5,
+        'a /memo/joint_states posterior older than the frame by more than this many '
+        'seconds is not predicted from: every live camera is assigned to every part instead',
+        0.0,
+        3600.0,
+    ),
+    Param(
+        'summary_every',
+        30,
+        "log a one-line summary at info level every this many frames (each frame's "
+        'selection is logged at debug level)',
+        1,
+        1_000_000,
+    ),
 )
 
 
 def selection_settings(params: dict) -> SelectionSettings:
     """The core selector's settings from this node's parameters (defaults for any not given)."""
     p = {q.name: q.default for q in PARAMS} | dict(params)
-    return SelectionSettings(vi_threshold=p['vi_threshold'], max_cameras_per_part=p['max_cameras_per_part'],
-                             render_scale=p['render_scale'], observability_norm=p['observability_norm'],
-                             camera_timeout_s=p['camera_timeout'])
+    return SelectionSettings(
+        vi_threshold=p['vi_threshold'],
+        max_cameras_per_part=p['max_cameras_per_part'],
+        render_scale=p['render_scale'],
+        observability_norm=p['observability_norm'],
+        camera_timeout_s=p['camera_timeout'],
+    )
 
 
 def header_stamp_ns(cdr: bytes) -> int | None:
     """The header stamp of a serialized message that starts with std_msgs/Header (None if too short)."""
     if len(cdr) < 12:
         return None
-    endian = '<' if cdr[1] & 1 else '>'            # CDR encapsulation: 0x0001 little, 0x0000 big endian
+    endian = '<' if cdr[1] & 1 else '>'  # CDR encapsulation: 0x0001 little, 0x0000 big endian
     sec, nanosec = struct.unpack_from(endian + 'iI', cdr, 4)
     return sec * 1_000_000_000 + nanosec
 
 
 def selection_line(assignment: Assignment) -> str:
     """One line: each part's selected cameras, best first ('-' = unobserved)."""
-    return ' '.join(f'{p}={"+".join(assignment.cameras_for(i)) or "-"}' for i, p in enumerate(PART_NAMES))
+    return ' '.join(
+        f'{p}={"+".join(assignment.cameras_for(i)) or "-"}' for i, p in enumerate(PART_NAMES)
+    )
 
 
 class SelectorNode(Node):
@@ -94,7 +156,9 @@ class SelectorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('selector_node', **kwargs)
         # the core refuses combinations the per-parameter ranges cannot, with the reason
-        self.params = declare(self, PARAMS, on_change=self._on_parameters_set, check=selection_settings)
+        self.params = declare(
+            self, PARAMS, on_change=self._on_parameters_set, check=selection_settings
+        )
         self.settings = selection_settings(self.params)
         self.studio: Studio = studio_from_node(self)
         self.body = self.studio.body
@@ -102,27 +166,46 @@ class SelectorNode(Node):
         self.selector = CameraSelector(self.body, self.studio.cameras, self.settings)
         self.motion = ConstantVelocity(self.body)
         self.coordinate_index = {n: i for i, n in enumerate(self.body.coordinate_names)}
-        self.liveness = CameraLiveness(list(self.names), self.settings.camera_timeout_s,
-                                       self.params['require_contours'], self.params['contours_timeout'])
+        self.liveness = CameraLiveness(
+            list(self.names),
+            self.settings.camera_timeout_s,
+            self.params['require_contours'],
+            self.params['contours_timeout'],
+        )
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='selector')
-        self.posteriors: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=POSTERIOR_HISTORY)
+        self.posteriors: deque[tuple[int, np.ndarray, np.ndarray]] = deque(
+            maxlen=POSTERIOR_HISTORY
+        )
         self.info_stamp: dict[str, int] = {}
         self.last_frame_ns: int | None = None
-        self.was_alive = {c: True for c in self.names}
+        self.was_alive = dict.fromkeys(self.names, True)
         self.frame_ms: deque[float] = deque(maxlen=100)
-        reliable = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=10)
+        reliable = QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=10
+        )
         for cam in self.names:
-            self.create_subscription(CameraInfo, f'/{cam}/camera_info',
-                                     lambda msg, cam=cam: self._on_camera_info(cam, msg), reliable)
-            self.create_subscription(PointCloud2, f'/{cam}/contours',
-                                     lambda data, cam=cam: self._on_contours(cam, data), reliable, raw=True)
+            self.create_subscription(
+                CameraInfo,
+                f'/{cam}/camera_info',
+                lambda msg, cam=cam: self._on_camera_info(cam, msg),
+                reliable,
+            )
+            self.create_subscription(
+                PointCloud2,
+                f'/{cam}/contours',
+                lambda data, cam=cam: self._on_contours(cam, data),
+                reliable,
+                raw=True,
+            )
         self.create_subscription(JointState, POSTERIOR_TOPIC, self._on_joint_states, reliable)
         self.publisher = self.create_publisher(DiagnosticArray, ASSIGNMENT_TOPIC, reliable)
         self.health.set('cameras', ','.join(self.names))
-        self.get_logger().info(f'studio {self.studio.name}: cameras {", ".join(self.names)}; '
-                               f'vi_threshold {self.settings.vi_threshold}, '
-                               f'{self.settings.max_cameras_per_part or "every visible"} camera(s) per part at most, '
-                               f'{self.settings.observability_norm}')
+        self.get_logger().info(
+            f'studio {self.studio.name}: cameras {", ".join(self.names)}; '
+            f'vi_threshold {self.settings.vi_threshold}, '
+            f'{self.settings.max_cameras_per_part or "every visible"} camera(s) per part at most, '
+            f'{self.settings.observability_norm}'
+        )
 
     # ------------------------------------------------------------ parameters
     def _on_parameters_set(self) -> None:
@@ -144,31 +227,52 @@ class SelectorNode(Node):
     def _on_joint_states(self, msg: JointState) -> None:
         self.health.count('joint_states_in')
         stamp = stamp_to_ns(msg.header.stamp)
-        names, pos, vel = list(msg.name), np.asarray(msg.position, float), np.asarray(msg.velocity, float)
+        names, pos, vel = (
+            list(msg.name),
+            np.asarray(msg.position, float),
+            np.asarray(msg.velocity, float),
+        )
         if len(pos) != len(names) or (len(vel) and len(vel) != len(names)):
-            self.health.drop('bad_joint_state', f'joint_states: {len(names)} names, {len(pos)} positions, '
-                                                f'{len(vel)} velocities')
+            self.health.drop(
+                'bad_joint_state',
+                f'joint_states: {len(names)} names, {len(pos)} positions, {len(vel)} velocities',
+            )
             return
-        unknown = [n for n in names if n not in self.coordinate_index and n not in EXTRA_STATE_NAMES]
+        unknown = [
+            n for n in names if n not in self.coordinate_index and n not in EXTRA_STATE_NAMES
+        ]
         if unknown:
-            self.health.drop('unknown_joint_names', f'joint_states: unknown coordinates {", ".join(unknown[:5])}')
+            self.health.drop(
+                'unknown_joint_names',
+                f'joint_states: unknown coordinates {", ".join(unknown[:5])}',
+            )
             return
         missing = set(self.coordinate_index) - set(names)
         if missing:
-            self.health.drop('missing_coordinates', f'joint_states: missing {", ".join(sorted(missing)[:5])}')
+            self.health.drop(
+                'missing_coordinates', f'joint_states: missing {", ".join(sorted(missing)[:5])}'
+            )
             return
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
-            self.health.drop('nonfinite_joint_state', 'joint_states: NaN or infinite position or velocity')
+            self.health.drop(
+                'nonfinite_joint_state', 'joint_states: NaN or infinite position or velocity'
+            )
             return
         if not len(vel):
             vel = np.zeros(len(names))
-            self.health.note('no_velocity', 'joint_states without velocities: predicted as standing still')
+            self.health.note(
+                'no_velocity', 'joint_states without velocities: predicted as standing still'
+            )
         if self.posteriors and stamp <= self.posteriors[-1][0]:
             if stamp == self.posteriors[-1][0]:
-                self.health.drop('stamp_not_newer', 'joint_states with the stamp of the previous one')
+                self.health.drop(
+                    'stamp_not_newer', 'joint_states with the stamp of the previous one'
+                )
                 return
             self.posteriors.clear()
-            self.health.note('time_jump_resets', 'joint_states stamps went backwards (bag loop?): history reset')
+            self.health.note(
+                'time_jump_resets', 'joint_states stamps went backwards (bag loop?): history reset'
+            )
         q = np.zeros(self.body.n_coordinates)
         qdot = np.zeros(self.body.n_coordinates)
         for name, p, v in zip(names, pos, vel):
@@ -181,13 +285,20 @@ class SelectorNode(Node):
         """(reason, message) when a camera_info is unusable or contradicts the studio's calibration."""
         k = np.asarray(msg.k, float)
         if not np.all(np.isfinite(k)) or not np.any(k) or msg.width == 0 or msg.height == 0:
-            return 'bad_camera_info', f'{cam}/camera_info is uncalibrated or malformed (K {k.tolist()}, ' \
-                                      f'{msg.width}x{msg.height})'
+            return (
+                'bad_camera_info',
+                f'{cam}/camera_info is uncalibrated or malformed (K {k.tolist()}, '
+                f'{msg.width}x{msg.height})',
+            )
         model = self.studio.camera(cam)
-        if (msg.width, msg.height) != (model.width, model.height) or \
-                not np.allclose(k, model.K.ravel(), rtol=K_TOLERANCE, atol=K_TOLERANCE):
-            return 'camera_info_mismatch', f'{cam}/camera_info ({msg.width}x{msg.height}, K {k.tolist()}) ' \
-                                           'differs from the studio calibration'
+        if (msg.width, msg.height) != (model.width, model.height) or not np.allclose(
+            k, model.K.ravel(), rtol=K_TOLERANCE, atol=K_TOLERANCE
+        ):
+            return (
+                'camera_info_mismatch',
+                f'{cam}/camera_info ({msg.width}x{msg.height}, K {k.tolist()}) '
+                'differs from the studio calibration',
+            )
         return None
 
     def _on_camera_info(self, cam: str, msg: CameraInfo) -> None:
@@ -202,13 +313,17 @@ class SelectorNode(Node):
             self.health.drop('stamp_not_newer', f'{cam}/camera_info repeats its previous stamp')
             return
         if previous is not None and stamp < previous:
-            self._reset(f'{cam}/camera_info stamps went backwards (bag loop?): liveness and posteriors reset')
+            self._reset(
+                f'{cam}/camera_info stamps went backwards (bag loop?): liveness and posteriors reset'
+            )
         self.info_stamp[cam] = stamp
         self.liveness.seen(cam, stamp, 'camera_info')
         if self.last_frame_ns is not None and stamp <= self.last_frame_ns:
             if stamp < self.last_frame_ns:
-                self.health.drop('stamp_not_newer', f'{cam}/camera_info for a frame older than the current one')
-            return                                                      # equal: this frame is under way
+                self.health.drop(
+                    'stamp_not_newer', f'{cam}/camera_info for a frame older than the current one'
+                )
+            return  # equal: this frame is under way
         self.last_frame_ns = stamp
         self._frame(stamp)
 
@@ -240,7 +355,9 @@ class SelectorNode(Node):
                 self.health.count('no_posterior')
             else:
                 stamp_prev, q_prev, qdot_prev = posterior
-                q_pred, _ = self.motion.predict_coordinates(q_prev, qdot_prev, (stamp - stamp_prev) * 1e-9)
+                q_pred, _ = self.motion.predict_coordinates(
+                    q_prev, qdot_prev, (stamp - stamp_prev) * 1e-9
+                )
                 assignment = self.selector.assign(q_prev, q_pred, alive)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             self.health.drop('selection_failed', f'frame {stamp}: {exc}')
@@ -251,18 +368,23 @@ class SelectorNode(Node):
         self.health.count('assignments_published')
         self.health.set('mode', assignment.mode)
         self.health.set('cameras_alive', ','.join(c for c in self.names if alive[c]) or 'none')
-        self.health.set('unobserved_parts', ','.join(p for p, o in zip(PART_NAMES, assignment.observed) if not o)
-                        or 'none')
+        self.health.set(
+            'unobserved_parts',
+            ','.join(p for p, o in zip(PART_NAMES, assignment.observed) if not o) or 'none',
+        )
         self.health.set('last_frame_ms', f'{elapsed:.2f}')
         self.health.ok()
-        self.get_logger().debug(f'frame {stamp * 1e-9:.6f} {assignment.mode}: {selection_line(assignment)}')
+        self.get_logger().debug(
+            f'frame {stamp * 1e-9:.6f} {assignment.mode}: {selection_line(assignment)}'
+        )
         published = self.health.counters['assignments_published']
         if published % self.params['summary_every'] == 0:
             unobserved = [p for p, o in zip(PART_NAMES, assignment.observed) if not o]
             self.get_logger().info(
                 f'{published} assignments; frame {stamp * 1e-9:.3f} {assignment.mode}, cameras alive '
                 f'{",".join(c for c in self.names if alive[c]) or "none"}, unobserved '
-                f'{",".join(unobserved) or "none"}; median {np.median(self.frame_ms):.2f} ms per frame')
+                f'{",".join(unobserved) or "none"}; median {np.median(self.frame_ms):.2f} ms per frame'
+            )
 
     def _log_liveness(self, alive: dict[str, bool], stamp: int) -> None:
         """Say when a camera times out or comes back."""
@@ -271,8 +393,11 @@ class SelectorNode(Node):
                 if alive[cam]:
                     self.get_logger().info(f'{cam} is back: assigned again')
                 else:
-                    self.health.note('camera_timeouts', f'{cam}: no camera_info or contours for more than '
-                                                        f'{self.settings.camera_timeout_s:g} s: excluded')
+                    self.health.note(
+                        'camera_timeouts',
+                        f'{cam}: no camera_info or contours for more than '
+                        f'{self.settings.camera_timeout_s:g} s: excluded',
+                    )
                 self.was_alive[cam] = alive[cam]
 
 

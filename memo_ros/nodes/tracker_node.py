@@ -2,23 +2,24 @@
 
 Subscribes every camera's ``/<cam>/contours`` and ``/memo/camera_assignment``,
 joins them by header stamp with a bounded wait, runs
-:class:`memo_ros.core.tracking.ArticulatedTracker` and publishes
+:class:`memo_ros.core.multiview.tracking.ArticulatedTracker` and publishes
 ``/memo/joint_states``, ``/memo/body_poses``, ``/memo/markers``,
 ``/memo/root_pose`` and ``/diagnostics``, all stamped with the frame's stamp.
 Services like robot_localization's: ``~/reset`` (std_srvs/Trigger) and the
 ``~/set_pose`` topic (sensor_msgs/JointState with named coordinates).
 """
+
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import sys
 import threading
 import time
 import traceback
-from dataclasses import dataclass, field
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
+import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
@@ -26,12 +27,26 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from memo_ros.core.body_estimation import estimate_body, silhouette_from_contours
-from memo_ros.core.motion import ProcessNoise, coordinates_from_names
-from memo_ros.core.tracking import LOST, TRACKING, ArticulatedTracker, TrackerSettings
+from memo_ros.core.multiview.body_estimation import (
+    estimate_body,
+    silhouette_from_contours,
+)
+from memo_ros.core.multiview.motion import ProcessNoise, coordinates_from_names
+from memo_ros.core.multiview.tracking import (
+    LOST,
+    TRACKING,
+    ArticulatedTracker,
+    TrackerSettings,
+)
 from memo_ros.ros.assignment_messages import assignment_from_message
-from memo_ros.ros.body_messages import (PROCESSED_TOPIC, joint_state_message, marker_array_message,
-                                        pose_array_message, processed_message, root_pose_message)
+from memo_ros.ros.body_messages import (
+    PROCESSED_TOPIC,
+    joint_state_message,
+    marker_array_message,
+    pose_array_message,
+    processed_message,
+    root_pose_message,
+)
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
@@ -41,50 +56,164 @@ from memo_ros.ros.studio_params import studio_from_node
 
 PARAMS: tuple[Param, ...] = (
     Param('sigma_px', 1.0, 'image force noise across the contour (eq. 14), pixels', 0.05, 100.0),
-    Param('sigma_rim_px', 3.0, "image force noise at a part's ends, where contour smoothing rounds tips, pixels",
-          0.05, 100.0),
-    Param('sigma_normal', 0.0, 'normal force noise (eq. 15), unit-vector units; 0 (default) switches the normal '
-          'force off: k_z from pixel-staircase tangents is biased', 0.0, 10.0),
-    Param('search_px', 25.0, 'largest image distance between a contour sample and its model node, pixels',
-          1.0, 500.0),
-    Param('gate_sigma', 4.0, 'Mahalanobis gate on each measurement innovation, standard deviations', 1.0, 100.0),
+    Param(
+        'sigma_rim_px',
+        3.0,
+        "image force noise at a part's ends, where contour smoothing rounds tips, pixels",
+        0.05,
+        100.0,
+    ),
+    Param(
+        'sigma_normal',
+        0.0,
+        'normal force noise (eq. 15), unit-vector units; 0 (default) switches the normal '
+        'force off: k_z from pixel-staircase tangents is biased',
+        0.0,
+        10.0,
+    ),
+    Param(
+        'search_px',
+        25.0,
+        'largest image distance between a contour sample and its model node, pixels',
+        1.0,
+        500.0,
+    ),
+    Param(
+        'gate_sigma',
+        4.0,
+        'Mahalanobis gate on each measurement innovation, standard deviations',
+        1.0,
+        100.0,
+    ),
     Param('iterations', 2, 'iterated-EKF relinearisations per frame', 1, 20),
-    Param('outline_probe_px', 2.0, 'a model node is on the predicted outline when a ray this far outside it misses '
-          'the body, pixels', 0.1, 50.0),
-    Param('contour_smoothing', 2.0, "contour_node's smoothing, pixels: samples it moved (tight curves) count less",
-          0.0, 50.0),
-    Param('limit_sigma', 0.02, 'joint ranges as soft pseudo-measurements, rad; 0 switches the limits off', 0.0, 10.0),
-    Param('process_noise_translation', 2.0, 'white-noise acceleration of the root position, m/s^2/sqrt(Hz)',
-          0.001, 100.0),
-    Param('process_noise_root_rotation', 3.0, 'white-noise angular acceleration of the root, rad/s^2/sqrt(Hz)',
-          0.001, 1000.0),
-    Param('process_noise_joint', 6.0, 'white-noise acceleration of every joint angle, rad/s^2/sqrt(Hz)',
-          0.001, 1000.0),
-    Param('nis_limit', 30.0, 'mean normalised innovation squared above which a frame is inconsistent', 1.0, 1e6),
-    Param('min_matched_fraction', 0.3, 'fewer contour samples used than this fraction makes a frame inconsistent',
-          0.0, 1.0),
-    Param('lost_after', 5, 'inconsistent or empty frames in a row before tracking is declared lost', 1, 1000),
-    Param('join_timeout', 0.15, 'longest wait for the rest of a frame (cameras, assignment) after its first '
-          'message, s', 0.001, 10.0),
-    Param('camera_timeout', 0.5, 'a camera whose newest contours are older than this (stamp time) is not waited '
-          'for, s', 0.01, 60.0),
-    Param('time_jump', 1.0, 'a stamp this far behind the last processed frame resets the filter (bag loop), s',
-          0.01, 3600.0),
-    Param('use_initial_pose', True, "start from the studio's initial_pose when it has one (else from the "
-          'silhouettes)'),
-    Param('wait_for_assignment', True, "wait (up to join_timeout) for the selector's assignment of each frame"),
-    Param('body_source', 'studio', "the body's dimensions: the studio file's, or the studio body's proportions "
-          "scaled to the subject's height measured from the visual hull of the first frames' silhouettes (real "
-          'recordings)', choices=('studio', 'silhouettes'), read_only=True),
-    Param('body_frames', 1, 'body_source silhouettes: frames whose silhouettes measure the height (the ones before '
-          'the last are reported waiting)', 1, 1000, read_only=True),
-    Param('max_lag', 1.0, 'frames are tracked in order, but one older than the newest complete frame by more than '
-          'this (stamp time) is skipped (counted skipped_behind): the latency bound when the update is slower than '
-          'the cameras; 0 tracks only the newest, a large value every frame', 0.0, 3600.0),
+    Param(
+        'outline_probe_px',
+        2.0,
+        'a model node is on the predicted outline when a ray this far outside it misses '
+        'the body, pixels',
+        0.1,
+        50.0,
+    ),
+    Param(
+        'contour_smoothing',
+        2.0,
+        "contour_node's smoothing, pixels: samples it moved (tight curves) count less",
+        0.0,
+        50.0,
+    ),
+    Param(
+        'limit_sigma',
+        0.02,
+        'joint ranges as soft pseudo-measurements, rad; 0 switches the limits off',
+        0.0,
+        10.0,
+    ),
+    Param(
+        'process_noise_translation',
+        2.0,
+        'white-noise acceleration of the root position, m/s^2/sqrt(Hz)',
+        0.001,
+        100.0,
+    ),
+    Param(
+        'process_noise_root_rotation',
+        3.0,
+        'white-noise angular acceleration of the root, rad/s^2/sqrt(Hz)',
+        0.001,
+        1000.0,
+    ),
+    Param(
+        'process_noise_joint',
+        6.0,
+        'white-noise acceleration of every joint angle, rad/s^2/sqrt(Hz)',
+        0.001,
+        1000.0,
+    ),
+    Param(
+        'nis_limit',
+        30.0,
+        'mean normalised innovation squared above which a frame is inconsistent',
+        1.0,
+        1e6,
+    ),
+    Param(
+        'min_matched_fraction',
+        0.3,
+        'fewer contour samples used than this fraction makes a frame inconsistent',
+        0.0,
+        1.0,
+    ),
+    Param(
+        'lost_after',
+        5,
+        'inconsistent or empty frames in a row before tracking is declared lost',
+        1,
+        1000,
+    ),
+    Param(
+        'join_timeout',
+        0.15,
+        'longest wait for the rest of a frame (cameras, assignment) after its first message, s',
+        0.001,
+        10.0,
+    ),
+    Param(
+        'camera_timeout',
+        0.5,
+        'a camera whose newest contours are older than this (stamp time) is not waited for, s',
+        0.01,
+        60.0,
+    ),
+    Param(
+        'time_jump',
+        1.0,
+        'a stamp this far behind the last processed frame resets the filter (bag loop), s',
+        0.01,
+        3600.0,
+    ),
+    Param(
+        'use_initial_pose',
+        True,
+        "start from the studio's initial_pose when it has one (else from the silhouettes)",
+    ),
+    Param(
+        'wait_for_assignment',
+        True,
+        "wait (up to join_timeout) for the selector's assignment of each frame",
+    ),
+    Param(
+        'body_source',
+        'studio',
+        "the body's dimensions: the studio file's, or the studio body's proportions "
+        "scaled to the subject's height measured from the visual hull of the first frames' silhouettes (real "
+        'recordings)',
+        choices=('studio', 'silhouettes'),
+        read_only=True,
+    ),
+    Param(
+        'body_frames',
+        1,
+        'body_source silhouettes: frames whose silhouettes measure the height (the ones before '
+        'the last are reported waiting)',
+        1,
+        1000,
+        read_only=True,
+    ),
+    Param(
+        'max_lag',
+        1.0,
+        'frames are tracked in order, but one older than the newest complete frame by more than '
+        'this (stamp time) is skipped (counted skipped_behind): the latency bound when the update is slower than '
+        'the cameras; 0 tracks only the newest, a large value every frame',
+        0.0,
+        3600.0,
+    ),
 )
-LATE_STAMPS_KEPT = 512      # stamps of late frames remembered, so each is counted once
-EXPIRY_CHECK_S = 0.02       # how often frames whose join wait expired are looked for
-MISSES_BEFORE_NOT_WAITING = 3   # a camera missing from this many joined frames in a row is not waited for
+LATE_STAMPS_KEPT = 512  # stamps of late frames remembered, so each is counted once
+EXPIRY_CHECK_S = 0.02  # how often frames whose join wait expired are looked for
+MISSES_BEFORE_NOT_WAITING = (
+    3  # a camera missing from this many joined frames in a row is not waited for
+)
 
 
 @dataclass
@@ -99,13 +228,24 @@ class PendingFrame:
 def tracker_settings(p: dict) -> TrackerSettings:
     """TrackerSettings from the node's parameter values."""
     return TrackerSettings(
-        sigma_px=p['sigma_px'], sigma_rim_px=p['sigma_rim_px'], sigma_normal=p['sigma_normal'],
-        search_px=p['search_px'], gate_sigma=p['gate_sigma'], iterations=p['iterations'],
-        outline_probe_px=p['outline_probe_px'], contour_smoothing=p['contour_smoothing'],
-        limit_sigma=p['limit_sigma'], nis_limit=p['nis_limit'], min_matched_fraction=p['min_matched_fraction'],
+        sigma_px=p['sigma_px'],
+        sigma_rim_px=p['sigma_rim_px'],
+        sigma_normal=p['sigma_normal'],
+        search_px=p['search_px'],
+        gate_sigma=p['gate_sigma'],
+        iterations=p['iterations'],
+        outline_probe_px=p['outline_probe_px'],
+        contour_smoothing=p['contour_smoothing'],
+        limit_sigma=p['limit_sigma'],
+        nis_limit=p['nis_limit'],
+        min_matched_fraction=p['min_matched_fraction'],
         lost_after=p['lost_after'],
-        process_noise=ProcessNoise(p['process_noise_translation'], p['process_noise_root_rotation'],
-                                   p['process_noise_joint']))
+        process_noise=ProcessNoise(
+            p['process_noise_translation'],
+            p['process_noise_root_rotation'],
+            p['process_noise_joint'],
+        ),
+    )
 
 
 class TrackerNode(Node):
@@ -115,7 +255,8 @@ class TrackerNode(Node):
     thread of their own, so the join always sees what has arrived and, when the update falls behind the
     cameras by more than max_lag, skips ahead instead of letting the DDS queues overflow.  (rclpy's
     multi-threaded executor with a tracking callback group did the same, but left complete frames waiting
-    0.3 - 2 s for their turn: a paced replay ran at a fifth of its speed.)"""
+    0.3 - 2 s for their turn: a paced replay ran at a fifth of its speed.)
+    """
 
     def __init__(self, **kwargs) -> None:
         super().__init__('tracker_node', **kwargs)
@@ -125,28 +266,39 @@ class TrackerNode(Node):
         self.camera_names = self.studio.camera_names
         initial = None
         if self.studio.initial_pose and self.params['use_initial_pose']:
-            initial = coordinates_from_names(self.body, list(self.studio.initial_pose),
-                                             list(self.studio.initial_pose.values()))
-        self.tracker = ArticulatedTracker(self.body, self.studio.cameras, tracker_settings(self.params), initial)
-        self.body_silhouettes: list | None = [] if self.params['body_source'] == 'silhouettes' else None
+            initial = coordinates_from_names(
+                self.body, list(self.studio.initial_pose), list(self.studio.initial_pose.values())
+            )
+        self.tracker = ArticulatedTracker(
+            self.body, self.studio.cameras, tracker_settings(self.params), initial
+        )
+        self.body_silhouettes: list | None = (
+            [] if self.params['body_source'] == 'silhouettes' else None
+        )
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
         # join state and commands, shared by the executor and the tracking thread (under self.lock)
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
-        self.commands: list = []            # tracker changes asked for by services and parameters, in order
+        self.commands: list = []  # tracker changes asked for by services and parameters, in order
         self.pending: dict[int, PendingFrame] = {}
         self.last_processed_ns: int | None = None
         self.first_stamp_ns: int | None = None
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
-        self.missed: dict[str, int] = {c: 0 for c in self.camera_names}   # joined frames in a row without it
-        self.late_stamps: dict[int, None] = {}      # insertion-ordered sets of recent stamps
+        self.missed: dict[str, int] = dict.fromkeys(self.camera_names, 0)  # joined frames in a row without it
+        self.late_stamps: dict[int, None] = {}  # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
         # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten
-        reliable = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100)
+        reliable = QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100
+        )
         for cam in self.camera_names:
-            self.create_subscription(PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable)
-        self.create_subscription(DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable)
+            self.create_subscription(
+                PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable
+            )
+        self.create_subscription(
+            DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable
+        )
         # the tracker itself is touched only by the tracking thread: set_pose, reset and parameters queue commands
         self.create_subscription(JointState, '~/set_pose', self._on_set_pose, reliable)
         self.pub_joints = self.create_publisher(JointState, '/memo/joint_states', 10)
@@ -156,8 +308,10 @@ class TrackerNode(Node):
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, 100)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health.set('tracking_state', self.tracker.status)
-        self.get_logger().info(f'tracking with cameras {", ".join(self.camera_names)}; '
-                               f'initial pose: {"studio" if initial is not None else "from the silhouettes"}')
+        self.get_logger().info(
+            f'tracking with cameras {", ".join(self.camera_names)}; '
+            f'initial pose: {"studio" if initial is not None else "from the silhouettes"}'
+        )
         # a frame is tracked as soon as the intake completes it (notified), or when its wait expires
         self.woken = False
         self.stopping = False
@@ -218,11 +372,13 @@ class TrackerNode(Node):
     def _contour_callback(self, cam: str):
         def on_contours(msg: PointCloud2) -> None:
             self._on_contours(cam, msg)
+
         return on_contours
 
     def _frame_for(self, stamp: int, what: str) -> PendingFrame | None:
         """The pending frame of ``stamp`` (call under the lock); None (counted) when it is late; a jump back
-        in time resets the filter."""
+        in time resets the filter.
+        """
         last = self.last_processed_ns
         if last is not None and stamp <= last:
             if last - stamp > self.params['time_jump'] * 1e9:
@@ -233,7 +389,9 @@ class TrackerNode(Node):
                 self.done_stamps.clear()
                 self.late_stamps.clear()
                 self.commands.append(lambda: self.tracker.reset())
-                self.health.note('time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset')
+                self.health.note(
+                    'time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset'
+                )
             else:
                 self._late(stamp, what)
                 return None
@@ -246,14 +404,17 @@ class TrackerNode(Node):
 
     def _late(self, stamp: int, what: str) -> None:
         """A message of a frame already processed or passed over: counted; a frame first heard of now is
-        accounted for once, on /memo/processed as 'late'."""
+        accounted for once, on /memo/processed as 'late'.
+        """
         if stamp in self.late_stamps or stamp in self.done_stamps:
             self.health.count('late_messages')
             return
         self.late_stamps[stamp] = None
         if len(self.late_stamps) > LATE_STAMPS_KEPT:
             del self.late_stamps[next(iter(self.late_stamps))]
-        self.health.drop('late_frame', f'{what} of a frame older than the last processed one arrived late')
+        self.health.drop(
+            'late_frame', f'{what} of a frame older than the last processed one arrived late'
+        )
         self.pub_processed.publish(processed_message(stamp, 'late'))
 
     def _on_contours(self, cam: str, msg: PointCloud2) -> None:
@@ -267,10 +428,18 @@ class TrackerNode(Node):
         except ValueError as exc:
             self.health.drop('bad_contours', f'{cam}: contours unreadable: {exc}')
             return
-        finite = np.isfinite(table['x']) & np.isfinite(table['y']) & np.isfinite(table['tx']) & np.isfinite(table['ty'])
+        finite = (
+            np.isfinite(table['x'])
+            & np.isfinite(table['y'])
+            & np.isfinite(table['tx'])
+            & np.isfinite(table['ty'])
+        )
         if not finite.all():
             self.health.count('nan_contour_points', int((~finite).sum()))
-            self.health.drop('nan_contour_points', f'{cam}: {int((~finite).sum())} contour points with NaN ignored')
+            self.health.drop(
+                'nan_contour_points',
+                f'{cam}: {int((~finite).sum())} contour points with NaN ignored',
+            )
             table = table[finite]
         with self.lock:
             frame = self._frame_for(stamp, f'{cam} contours')
@@ -291,8 +460,10 @@ class TrackerNode(Node):
             return
         unknown = [c for c in assignment.cameras if c not in self.camera_names]
         if unknown:
-            self.health.drop('assignment_unknown_camera',
-                             f'assignment names camera(s) not in the studio: {", ".join(unknown)} (ignored)')
+            self.health.drop(
+                'assignment_unknown_camera',
+                f'assignment names camera(s) not in the studio: {", ".join(unknown)} (ignored)',
+            )
         with self.lock:
             frame = self._frame_for(stamp, 'assignment')
             if frame is not None:
@@ -302,7 +473,8 @@ class TrackerNode(Node):
     # ------------------------------------------------------------ joining (under the lock)
     def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
         """Cameras worth waiting for: alive in the assignment, or with recent contours; not one that was
-        missing from the last few joined frames (its contour_node died, before the selector says so)."""
+        missing from the last few joined frames (its contour_node died, before the selector says so).
+        """
         if frame.assignment is not None:
             a = frame.assignment
             cams = [c for c, alive in zip(a.cameras, a.alive) if alive and c in self.camera_names]
@@ -310,8 +482,14 @@ class TrackerNode(Node):
             window = self.params['camera_timeout'] * 1e9
             first = self.first_stamp_ns if self.first_stamp_ns is not None else stamp
             # a camera not heard from yet is waited for during the first camera_timeout of the stream
-            cams = [c for c in self.camera_names if stamp - self.newest_contours_ns.get(c, first) <= window]
-        return [c for c in cams if self.missed[c] < MISSES_BEFORE_NOT_WAITING or c in frame.contours]
+            cams = [
+                c
+                for c in self.camera_names
+                if stamp - self.newest_contours_ns.get(c, first) <= window
+            ]
+        return [
+            c for c in cams if self.missed[c] < MISSES_BEFORE_NOT_WAITING or c in frame.contours
+        ]
 
     def _complete(self, stamp: int, frame: PendingFrame) -> bool:
         if self.params['wait_for_assignment'] and frame.assignment is None:
@@ -322,39 +500,52 @@ class TrackerNode(Node):
         """The frame to track now, with the expected cameras it lacks: the oldest complete one (older
         incomplete ones first, as they are), else the oldest whose wait exceeded join_timeout, going through
         with what arrived.  Only time spent idle counts for the timeout: after a long update the queued
-        messages get their turn.  Frames more than max_lag older than the newest ready one are skipped."""
+        messages get their turn.  Frames more than max_lag older than the newest ready one are skipped.
+        """
         ready = [s for s in sorted(self.pending) if self._complete(s, self.pending[s])]
         if not ready:
             now = time.monotonic()
             if now - self.idle_since < self.params['join_timeout']:
                 return None
-            ready = sorted(s for s, f in self.pending.items() if now - f.first_wall > self.params['join_timeout'])
+            ready = sorted(
+                s
+                for s, f in self.pending.items()
+                if now - f.first_wall > self.params['join_timeout']
+            )
             if not ready:
                 return None
         horizon = ready[-1] - int(self.params['max_lag'] * 1e9)
         for old in [s for s in sorted(self.pending) if s < horizon]:
             del self.pending[old]
             self._skip(old)
-        stamp = min(self.pending)            # in stamp order: an older, incomplete frame goes first as it is
+        stamp = min(self.pending)  # in stamp order: an older, incomplete frame goes first as it is
         frame = self.pending.pop(stamp)
-        self._done(stamp)                    # from now on a message of this frame is late, not a new frame
+        self._done(stamp)  # from now on a message of this frame is late, not a new frame
         missing = [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
         for cam in missing:
             self.missed[cam] += 1
             if self.missed[cam] == MISSES_BEFORE_NOT_WAITING:
-                self.health.note('camera_not_waited_for', f'{cam}: no contours in {MISSES_BEFORE_NOT_WAITING} frames '
-                                                          'in a row: not waited for until they come again')
+                self.health.note(
+                    'camera_not_waited_for',
+                    f'{cam}: no contours in {MISSES_BEFORE_NOT_WAITING} frames '
+                    'in a row: not waited for until they come again',
+                )
         return stamp, frame, missing
 
     def _skip(self, stamp: int) -> None:
         """A frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""
-        self.health.drop('skipped_behind', f'the tracker is more than max_lag = {self.params["max_lag"]:g} s '
-                                           'behind: an older frame was skipped')
+        self.health.drop(
+            'skipped_behind',
+            f'the tracker is more than max_lag = {self.params["max_lag"]:g} s '
+            'behind: an older frame was skipped',
+        )
         self._done(stamp)
         self.pub_processed.publish(processed_message(stamp, 'skipped'))
 
     def _done(self, stamp: int) -> None:
-        self.last_processed_ns = stamp if self.last_processed_ns is None else max(stamp, self.last_processed_ns)
+        self.last_processed_ns = (
+            stamp if self.last_processed_ns is None else max(stamp, self.last_processed_ns)
+        )
         self.done_stamps[stamp] = None
         if len(self.done_stamps) > LATE_STAMPS_KEPT:
             del self.done_stamps[next(iter(self.done_stamps))]
@@ -362,7 +553,8 @@ class TrackerNode(Node):
     # ------------------------------------------------------------ tracking (its own thread)
     def _work(self) -> None:
         """The tracking thread: woken by the intake, and every EXPIRY_CHECK_S for joins whose wait expired.
-        An error here ends the node (spin is shut down, the process exits non-zero), as it would in a callback."""
+        An error here ends the node (spin is shut down, the process exits non-zero), as it would in a callback.
+        """
         try:
             while True:
                 with self.lock:
@@ -371,7 +563,7 @@ class TrackerNode(Node):
                         return
                     self.woken = False
                 self._tick()
-        except Exception as exc:        # noqa: BLE001 - reported, then the node stops
+        except Exception as exc:  # noqa: BLE001 - reported, then the node stops
             self.failure = exc
             self.get_logger().fatal(f'tracking thread failed: {exc!r}\n{traceback.format_exc()}')
             self.context.try_shutdown()
@@ -398,13 +590,18 @@ class TrackerNode(Node):
         if frame.assignment is None:
             self.health.count('frames_without_assignment')
         if not frame.contours:
-            self.health.drop('no_contours', 'a frame had an assignment but no camera contours within join_timeout')
+            self.health.drop(
+                'no_contours',
+                'a frame had an assignment but no camera contours within join_timeout',
+            )
             return 'no_contours'
         if self.body_silhouettes is not None and not self._measure_body(frame.contours):
             return 'waiting'
         selected = None
         if frame.assignment is not None:
-            selected = {c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names}
+            selected = {
+                c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names
+            }
         result = self.tracker.step(stamp, frame.contours, selected)
         self.idle_since = time.monotonic()
         self.health.set('tracking_state', result.status)
@@ -418,7 +615,10 @@ class TrackerNode(Node):
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:
-            self.health.drop('tracking_lost', f'tracking lost: {result.reason}; re-initialising from the silhouettes')
+            self.health.drop(
+                'tracking_lost',
+                f'tracking lost: {result.reason}; re-initialising from the silhouettes',
+            )
             return LOST
         if result.status != TRACKING:
             self.health.drop('no_body', f'no estimate: {result.reason}')
@@ -430,10 +630,15 @@ class TrackerNode(Node):
 
     def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:
         """body_source silhouettes: gather the frame's silhouettes; once body_frames are in, scale the body to
-        the measured height and start a tracker for it.  True when the body is measured (track this frame)."""
+        the measured height and start a tracker for it.  True when the body is measured (track this frame).
+        """
         cameras = [c for c in self.studio.cameras if len(contours.get(c.name, ()))]
-        self.body_silhouettes.append((cameras, [silhouette_from_contours(contours[c.name], c.width, c.height)
-                                                for c in cameras]))
+        self.body_silhouettes.append(
+            (
+                cameras,
+                [silhouette_from_contours(contours[c.name], c.width, c.height) for c in cameras],
+            )
+        )
         if len(self.body_silhouettes) < self.params['body_frames']:
             self.health.drop('measuring_body', 'frame used to measure the body, not tracked')
             return False
@@ -447,18 +652,25 @@ class TrackerNode(Node):
         self.tracker = ArticulatedTracker(body, self.studio.cameras, tracker_settings(self.params))
         self.body_silhouettes = None
         self.health.set('body_height_m', f'{height:.3f}')
-        self.get_logger().info(f'body measured from {len(frames)} frame(s) of silhouettes: height {height:.3f} m '
-                               f'(the studio body, {self.studio.body.standing_height():.3f} m, scaled)')
+        self.get_logger().info(
+            f'body measured from {len(frames)} frame(s) of silhouettes: height {height:.3f} m '
+            f'(the studio body, {self.studio.body.standing_height():.3f} m, scaled)'
+        )
         return True
 
     def _publish(self, stamp: int, result) -> None:
         names = list(self.body.coordinate_names)
         self.pub_joints.publish(joint_state_message(stamp, names, result.q, result.qdot))
         self.pub_poses.publish(pose_array_message(stamp, result.rotations, result.origins))
-        self.pub_markers.publish(marker_array_message(stamp, self.body, result.rotations, result.origins))
+        self.pub_markers.publish(
+            marker_array_message(stamp, self.body, result.rotations, result.origins)
+        )
         # error-state order: root translation (x, y, z) then the root's rotation increment, as REP 103 wants
-        self.pub_root.publish(root_pose_message(stamp, result.rotations[0], result.origins[0],
-                                                result.covariance[:6, :6]))
+        self.pub_root.publish(
+            root_pose_message(
+                stamp, result.rotations[0], result.origins[0], result.covariance[:6, :6]
+            )
+        )
 
 
 def main(args: list[str] | None = None) -> int:
@@ -468,4 +680,3 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == '__main__':
     sys.exit(main())
-

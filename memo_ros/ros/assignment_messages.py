@@ -7,16 +7,17 @@ selected cameras best first, comma-separated (or ``unobserved``), and
 ``<cam>.alive`` per camera, then ``mode``.  ``ros2 topic echo`` shows it as
 plain text; ``memo-ros echo`` prints it as a part x camera table.
 """
+
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
 
-from memo_ros.core.body import PART_NAMES
-from memo_ros.core.selection import Assignment
+from memo_ros.core.geometry.body import PART_NAMES
+from memo_ros.core.multiview.selection import Assignment
 from memo_ros.ros.body_messages import WORLD, stamp_from_ns
 
 HARDWARE_ID = 'memo_camera_assignment'
@@ -43,10 +44,14 @@ def assignment_to_message(assignment: Assignment, stamp: Time | int) -> Diagnost
         status.message = ', '.join(assignment.cameras_for(i)) or UNOBSERVED
         values = []
         for k, cam in enumerate(assignment.cameras):
-            values += [KeyValue(key=f'{cam}.vi', value=_number(assignment.vi[i, k], 3)),
-                       KeyValue(key=f'{cam}.observability', value=_number(assignment.observability[i, k], 2)),
-                       KeyValue(key=f'{cam}.selected', value=_flag(assignment.selected[i, k])),
-                       KeyValue(key=f'{cam}.alive', value=_flag(assignment.alive[k]))]
+            values += [
+                KeyValue(key=f'{cam}.vi', value=_number(assignment.vi[i, k], 3)),
+                KeyValue(
+                    key=f'{cam}.observability', value=_number(assignment.observability[i, k], 2)
+                ),
+                KeyValue(key=f'{cam}.selected', value=_flag(assignment.selected[i, k])),
+                KeyValue(key=f'{cam}.alive', value=_flag(assignment.alive[k])),
+            ]
         values.append(KeyValue(key='mode', value=assignment.mode))
         status.values = values
         msg.status.append(status)
@@ -57,15 +62,18 @@ def is_assignment_message(msg) -> bool:
     """True for a DiagnosticArray in this module's layout (one status per part, with a ``mode`` value)."""
     if not isinstance(msg, DiagnosticArray) or len(msg.status) != len(PART_NAMES):
         return False
-    return all(s.name == p for s, p in zip(msg.status, PART_NAMES)) and \
-        any(kv.key == 'mode' for kv in msg.status[0].values)
+    return all(s.name == p for s, p in zip(msg.status, PART_NAMES)) and any(
+        kv.key == 'mode' for kv in msg.status[0].values
+    )
 
 
 def assignment_from_message(msg: DiagnosticArray) -> Assignment:
     """The Assignment a message carries; ValueError when the message is not in this layout."""
     if not is_assignment_message(msg):
-        raise ValueError('not a camera assignment: expected one DiagnosticStatus per part in part order '
-                         'with a "mode" value')
+        raise ValueError(
+            'not a camera assignment: expected one DiagnosticStatus per part in part order '
+            'with a "mode" value'
+        )
     cameras: list[str] = []
     for kv in msg.status[0].values:
         cam, _, key = kv.key.rpartition('.')
@@ -86,7 +94,9 @@ def assignment_from_message(msg: DiagnosticArray) -> Assignment:
                 continue
             cam, _, key = kv.key.rpartition('.')
             if cam not in index:
-                raise ValueError(f'part {status.name}: value {kv.key!r} names a camera missing from the first part')
+                raise ValueError(
+                    f'part {status.name}: value {kv.key!r} names a camera missing from the first part'
+                )
             k = index[cam]
             if key == 'vi':
                 vi[i, k] = float(kv.value)
@@ -110,10 +120,18 @@ def assignment_rows(msg: DiagnosticArray) -> list[dict]:
     rows = []
     for i, part in enumerate(PART_NAMES):
         for k, cam in enumerate(a.cameras):
-            rows.append({'part': part, 'observed': bool(a.observed[i]), 'camera': cam, 'alive': bool(a.alive[k]),
-                         'vi': float(a.vi[i, k]), 'observability': float(a.observability[i, k]),
-                         'selected': bool(a.selected[i, k]),
-                         'rank': int(a.rank[i, k]) + 1 if a.rank[i, k] >= 0 else 0})
+            rows.append(
+                {
+                    'part': part,
+                    'observed': bool(a.observed[i]),
+                    'camera': cam,
+                    'alive': bool(a.alive[k]),
+                    'vi': float(a.vi[i, k]),
+                    'observability': float(a.observability[i, k]),
+                    'selected': bool(a.selected[i, k]),
+                    'rank': int(a.rank[i, k]) + 1 if a.rank[i, k] >= 0 else 0,
+                }
+            )
     return rows
 
 
@@ -121,14 +139,20 @@ def assignment_table(msg: DiagnosticArray) -> list[str]:
     """The message as text lines: a header, then a part x camera table (rank 1 = the best selected camera)."""
     a = assignment_from_message(msg)
     stamp = msg.header.stamp
-    lines = [f'camera assignment  stamp {stamp.sec}.{stamp.nanosec:09d}  frame_id {msg.header.frame_id}  '
-             f'mode {a.mode}',
-             f'{"part":<12} {"camera":<12} {"alive":<5} {"vi":>6} {"observability":>13} {"selected":>8}']
+    lines = [
+        f'camera assignment  stamp {stamp.sec}.{stamp.nanosec:09d}  frame_id {msg.header.frame_id}  '
+        f'mode {a.mode}',
+        f'{"part":<12} {"camera":<12} {"alive":<5} {"vi":>6} {"observability":>13} {"selected":>8}',
+    ]
     for i, part in enumerate(PART_NAMES):
         label = part if a.observed[i] else f'{part} !'
         for k, cam in enumerate(a.cameras):
             chosen = f'#{a.rank[i, k] + 1}' if a.selected[i, k] else '-'
-            lines.append(f'{label if k == 0 else "":<12} {cam:<12} {"yes" if a.alive[k] else "NO":<5} '
-                         f'{_number(a.vi[i, k], 3):>6} {_number(a.observability[i, k], 2):>13} {chosen:>8}')
-    lines.append('(#n: selected, n-th by observability; "!": unobserved, the tracker only predicts it)')
+            lines.append(
+                f'{label if k == 0 else "":<12} {cam:<12} {"yes" if a.alive[k] else "NO":<5} '
+                f'{_number(a.vi[i, k], 3):>6} {_number(a.observability[i, k], 2):>13} {chosen:>8}'
+            )
+    lines.append(
+        '(#n: selected, n-th by observability; "!": unobserved, the tracker only predicts it)'
+    )
     return lines

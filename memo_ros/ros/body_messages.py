@@ -3,24 +3,34 @@
 Shared by every node that publishes a body estimate (the articulated tracker and
 the walking tracker), so both speak exactly DESIGN.md's contract.
 """
+
 from __future__ import annotations
 
-import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, PoseArray, PoseWithCovarianceStamped, Quaternion, Vector3
+from geometry_msgs.msg import (
+    Point,
+    Pose,
+    PoseArray,
+    PoseWithCovarianceStamped,
+    Quaternion,
+    Vector3,
+)
+import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from memo_ros.core.body import PART_NAMES, Body
-from memo_ros.core.rotations import matrix_to_quat, quat_to_matrix
-from memo_ros.core.tracked_region import parts_from_cylinders
+from memo_ros.core.geometry.body import PART_NAMES, Body
+from memo_ros.core.geometry.rotations import matrix_to_quat, quat_to_matrix
+from memo_ros.core.vision.tracked_region import parts_from_cylinders
 from memo_ros.ros.messages import stamp_to_ns
 
 WORLD = 'world'
 MARKER_NAMESPACE = 'memo_body'
-MARKERS_TOPIC = '/memo/markers'       # visualization_msgs/MarkerArray: one cylinder per part
-PROCESSED_TOPIC = '/memo/processed'   # std_msgs/Header per frame a tracker finished, published or not
+MARKERS_TOPIC = '/memo/markers'  # visualization_msgs/MarkerArray: one cylinder per part
+PROCESSED_TOPIC = (
+    '/memo/processed'  # std_msgs/Header per frame a tracker finished, published or not
+)
 
 
 def stamp_from_ns(stamp_ns: int) -> Time:
@@ -48,36 +58,56 @@ def joint_state_message(stamp_ns: int, names, positions, velocities=None) -> Joi
 
 def _pose(rotation: np.ndarray, origin: np.ndarray) -> Pose:
     x, y, z, w = matrix_to_quat(rotation)
-    return Pose(position=Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2])),
-                orientation=Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)))
+    return Pose(
+        position=Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2])),
+        orientation=Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)),
+    )
 
 
 def pose_array_message(stamp_ns: int, rotations: np.ndarray, origins: np.ndarray) -> PoseArray:
     """geometry_msgs/PoseArray: one pose per part in part order (origin = proximal joint, +z along the part)."""
-    return PoseArray(header=world_header(stamp_ns), poses=[_pose(r, o) for r, o in zip(rotations, origins)])
+    return PoseArray(
+        header=world_header(stamp_ns), poses=[_pose(r, o) for r, o in zip(rotations, origins)]
+    )
 
 
-def marker_array_message(stamp_ns: int, body: Body, rotations: np.ndarray, origins: np.ndarray,
-                         colour: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.8),
-                         lifetime_s: float = 0.5) -> MarkerArray:
+def marker_array_message(
+    stamp_ns: int,
+    body: Body,
+    rotations: np.ndarray,
+    origins: np.ndarray,
+    colour: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.8),
+    lifetime_s: float = 0.5,
+) -> MarkerArray:
     """One CYLINDER per part, centred on the part's mid-point (RViz cylinders are centred, along z)."""
     markers = []
     r, g, b, a = colour
     for i, name in enumerate(PART_NAMES):
         centre = origins[i] + rotations[i][:, 2] * (body.lengths[i] / 2.0)
-        m = Marker(header=world_header(stamp_ns), ns=MARKER_NAMESPACE, id=i, type=Marker.CYLINDER,
-                   action=Marker.ADD, pose=_pose(rotations[i], centre),
-                   scale=Vector3(x=float(2 * body.semi_axes[i, 0]), y=float(2 * body.semi_axes[i, 1]),
-                                 z=float(body.lengths[i])),
-                   color=ColorRGBA(r=r, g=g, b=b, a=a), text=name)
+        m = Marker(
+            header=world_header(stamp_ns),
+            ns=MARKER_NAMESPACE,
+            id=i,
+            type=Marker.CYLINDER,
+            action=Marker.ADD,
+            pose=_pose(rotations[i], centre),
+            scale=Vector3(
+                x=float(2 * body.semi_axes[i, 0]),
+                y=float(2 * body.semi_axes[i, 1]),
+                z=float(body.lengths[i]),
+            ),
+            color=ColorRGBA(r=r, g=g, b=b, a=a),
+            text=name,
+        )
         m.lifetime.sec = int(lifetime_s)
         m.lifetime.nanosec = int((lifetime_s % 1.0) * 1e9)
         markers.append(m)
     return MarkerArray(markers=markers)
 
 
-def root_pose_message(stamp_ns: int, rotation: np.ndarray, origin: np.ndarray,
-                      covariance: np.ndarray) -> PoseWithCovarianceStamped:
+def root_pose_message(
+    stamp_ns: int, rotation: np.ndarray, origin: np.ndarray, covariance: np.ndarray
+) -> PoseWithCovarianceStamped:
     """The pelvis pose with its 6x6 covariance (x, y, z, rotation about x, y, z), like robot_localization's output."""
     msg = PoseWithCovarianceStamped(header=world_header(stamp_ns))
     msg.pose.pose = _pose(rotation, origin)
@@ -87,13 +117,27 @@ def root_pose_message(stamp_ns: int, rotation: np.ndarray, origin: np.ndarray,
 
 def tracked_body_from_markers(msg: MarkerArray) -> tuple[int, tuple[np.ndarray, ...]] | None:
     """(stamp ns, (rotations, origins, semi_axes, lengths)) of the body a /memo/markers message draws; None
-    when it has no cylinders (the inverse of :func:`marker_array_message` for the parts)."""
+    when it has no cylinders (the inverse of :func:`marker_array_message` for the parts).
+    """
     cylinders = sorted((m for m in msg.markers if m.type == m.CYLINDER), key=lambda m: m.id)
     if not cylinders:
         return None
-    centres = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in cylinders])
-    rotations = quat_to_matrix(np.array([[m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z,
-                                          m.pose.orientation.w] for m in cylinders]))
+    centres = np.array(
+        [[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in cylinders]
+    )
+    rotations = quat_to_matrix(
+        np.array(
+            [
+                [
+                    m.pose.orientation.x,
+                    m.pose.orientation.y,
+                    m.pose.orientation.z,
+                    m.pose.orientation.w,
+                ]
+                for m in cylinders
+            ]
+        )
+    )
     scales = np.array([[m.scale.x, m.scale.y, m.scale.z] for m in cylinders])
     origins, semi_axes, lengths = parts_from_cylinders(centres, rotations, scales)
     return stamp_to_ns(cylinders[0].header.stamp), (rotations, origins, semi_axes, lengths)

@@ -4,12 +4,13 @@ Tools own their ``rclpy.Context`` (never the global one) and install their own
 SIGINT/SIGTERM handlers, so a signal only asks the tool to stop and the tool
 can close bags and shut down executor, node and context in that order.
 """
+
 from __future__ import annotations
 
+from contextlib import contextmanager
 import signal
 import threading
 import time
-from contextlib import contextmanager
 from typing import Callable, Iterator
 
 import rclpy
@@ -19,18 +20,31 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE, 'best_effort': ReliabilityPolicy.BEST_EFFORT}
-DURABILITY = {'volatile': DurabilityPolicy.VOLATILE, 'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
+RELIABILITY = {
+    'reliable': ReliabilityPolicy.RELIABLE,
+    'best_effort': ReliabilityPolicy.BEST_EFFORT,
+}
+DURABILITY = {
+    'volatile': DurabilityPolicy.VOLATILE,
+    'transient_local': DurabilityPolicy.TRANSIENT_LOCAL,
+}
 
 
-def qos_profile(reliability: str = 'reliable', depth: int = 10, durability: str = 'volatile') -> QoSProfile:
+def qos_profile(
+    reliability: str = 'reliable', depth: int = 10, durability: str = 'volatile'
+) -> QoSProfile:
     """A keep-last QoS profile from the names used on the command line."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=RELIABILITY[reliability], durability=DURABILITY[durability])
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=RELIABILITY[reliability],
+        durability=DURABILITY[durability],
+    )
 
 
-def adapted_qos(node: Node, topic: str, depth: int, reliability: str = 'auto',
-                durability: str = 'auto') -> QoSProfile:
+def adapted_qos(
+    node: Node, topic: str, depth: int, reliability: str = 'auto', durability: str = 'auto'
+) -> QoSProfile:
     """A subscription profile that matches every current publisher of ``topic`` ('auto' adapts like rosbag2).
 
     Reliable only when all publishers are reliable, transient-local only when all
@@ -38,10 +52,14 @@ def adapted_qos(node: Node, topic: str, depth: int, reliability: str = 'auto',
     """
     offered = [info.qos_profile for info in node.get_publishers_info_by_topic(topic)]
     if reliability == 'auto':
-        reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+        reliable = bool(offered) and all(
+            q.reliability == ReliabilityPolicy.RELIABLE for q in offered
+        )
         reliability = 'reliable' if reliable else 'best_effort'
     if durability == 'auto':
-        latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+        latched = bool(offered) and all(
+            q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered
+        )
         durability = 'transient_local' if latched else 'volatile'
     return qos_profile(reliability, depth, durability)
 
@@ -57,8 +75,13 @@ def topic_types(node: Node) -> dict[str, list[str]]:
     return dict(node.get_topic_names_and_types())
 
 
-def wait_for_topic_type(node: Node, topic: str, timeout: float | None,
-                        stop: threading.Event | None = None, period: float = 0.1) -> str | None:
+def wait_for_topic_type(
+    node: Node,
+    topic: str,
+    timeout: float | None,
+    stop: threading.Event | None = None,
+    period: float = 0.1,
+) -> str | None:
     """The type of ``topic`` once a publisher or subscriber announces it (None on timeout or stop)."""
     deadline = None if timeout is None else time.monotonic() + timeout
     while stop is None or not stop.is_set():
@@ -75,13 +98,19 @@ def wait_for_topic_type(node: Node, topic: str, timeout: float | None,
 
 
 @contextmanager
-def ros_session(node_name: str, domain_id: int | None = None) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
+def ros_session(
+    node_name: str, domain_id: int | None = None
+) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
     """A node and its executor on a private context; shut down executor, node, context on exit."""
     context = Context()
-    rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(
+        context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO
+    )
     node = executor = None
     try:
-        node = Node(node_name, context=context, start_parameter_services=False, enable_rosout=False)
+        node = Node(
+            node_name, context=context, start_parameter_services=False, enable_rosout=False
+        )
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         yield node, executor
@@ -133,7 +162,9 @@ LARGE_SEGMENT_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-PLAYER_SEGMENT_FRAMES = 4       # frames of every camera (up to 4 bytes a pixel) a player's segment holds
+PLAYER_SEGMENT_FRAMES = (
+    4  # frames of every camera (up to 4 bytes a pixel) a player's segment holds
+)
 
 
 def player_segment_bytes(cameras) -> int:
@@ -147,16 +178,27 @@ def player_segment(segment_bytes: int, directory, localhost_only: bool = False) 
     ``localhost_only``, UDP on the loopback interface alone, for a graph on this host).
 
     Only when the user configured no Fast DDS transports (a profiles file, FASTDDS_BUILTIN_TRANSPORTS) and no
-    static peers; yields whether it applied.  The nodes, other processes, keep their defaults."""
+    static peers; yields whether it applied.  The nodes, other processes, keep their defaults.
+    """
     import os
     from pathlib import Path
-    configured = any(os.environ.get(v) for v in (PROFILES_VARIABLE, 'FASTDDS_BUILTIN_TRANSPORTS', 'ROS_STATIC_PEERS'))
+
+    configured = any(
+        os.environ.get(v)
+        for v in (PROFILES_VARIABLE, 'FASTDDS_BUILTIN_TRANSPORTS', 'ROS_STATIC_PEERS')
+    )
     if configured:
         yield False
         return
     profile = Path(directory) / 'memo_player_profile.xml'
-    whitelist = '<interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>' if localhost_only else ''
-    profile.write_text(LARGE_SEGMENT_PROFILE.format(segment_size=int(segment_bytes), udp_whitelist=whitelist))
+    whitelist = (
+        '<interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>'
+        if localhost_only
+        else ''
+    )
+    profile.write_text(
+        LARGE_SEGMENT_PROFILE.format(segment_size=int(segment_bytes), udp_whitelist=whitelist)
+    )
     os.environ[PROFILES_VARIABLE] = str(profile)
     try:
         yield True

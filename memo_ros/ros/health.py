@@ -3,10 +3,11 @@
 Every frame a node does not process is counted under a reason and logged with
 a throttled one-line warning, so nothing is dropped silently.
 """
+
 from __future__ import annotations
 
-import threading
 from collections import Counter
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -16,7 +17,8 @@ LOG_THROTTLE_S = 2.0
 
 class NodeHealth:
     """Counters, the last problem, and a periodic DiagnosticArray for one node (safe to use from a node's
-    own threads as well as its callbacks)."""
+    own threads as well as its callbacks).
+    """
 
     def __init__(self, node: Node, name: str, hardware_id: str = '', period: float = 1.0) -> None:
         self._node = node
@@ -43,8 +45,9 @@ class NodeHealth:
             self._problem = f'{reason}: {message}'
             self._level = DiagnosticStatus.WARN
             count = self.dropped[reason]
-        self._node.get_logger().warning(f'{message} [dropped: {reason}, {count} so far]',
-                                        throttle_duration_sec=LOG_THROTTLE_S)
+        self._node.get_logger().warning(
+            f'{message} [dropped: {reason}, {count} so far]', throttle_duration_sec=LOG_THROTTLE_S
+        )
 
     def note(self, reason: str, message: str) -> None:
         """Count an event that is not a drop (a reset, a warm-up) and log it throttled."""
@@ -71,7 +74,9 @@ class NodeHealth:
         with self._lock:
             status.message = 'OK' if self._level == DiagnosticStatus.OK else self._problem
             values = [KeyValue(key=k, value=str(v)) for k, v in sorted(self.counters.items())]
-            values += [KeyValue(key=f'dropped.{k}', value=str(v)) for k, v in sorted(self.dropped.items())]
+            values += [
+                KeyValue(key=f'dropped.{k}', value=str(v)) for k, v in sorted(self.dropped.items())
+            ]
             values.append(KeyValue(key='dropped.total', value=str(sum(self.dropped.values()))))
             values += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]
             if self._problem:

@@ -7,18 +7,19 @@ queue never reaches the node's callback, but its camera_info does.  Stamps are
 in order on each stream, so once an image of stamp s arrived, every announced
 stamp before s whose image did not come is lost for good.
 """
+
 from __future__ import annotations
 
 from collections import deque
 
-RECENT = 512        # stamps remembered on each side: far more than any queue holds
+RECENT = 512  # stamps remembered on each side: far more than any queue holds
 
 
 class LostFrameCounter:
     """Matches announced stamps (camera_info) with received ones (images); returns newly lost stamps."""
 
     def __init__(self, recent: int = RECENT) -> None:
-        self._settled: deque[int] = deque(maxlen=recent)       # received or already counted lost
+        self._settled: deque[int] = deque(maxlen=recent)  # received or already counted lost
         self._settled_set: set[int] = set()
         self._waiting: set[int] = set()
         self._recent = recent
@@ -26,13 +27,16 @@ class LostFrameCounter:
 
     def announced(self, stamp: int) -> list[int]:
         """A frame was announced; ``[stamp]`` when its image is already known lost, else [] (also for an
-        unstamped announcement, stamp 0, which names no frame)."""
+        unstamped announcement, stamp 0, which names no frame).
+        """
         if stamp == 0 or stamp in self._settled_set or stamp in self._waiting:
             return []
         if self.newest_received is not None and stamp < self.newest_received:
             self._settle(stamp)
-            return [stamp]              # a newer image came first: this one's never will
-        if len(self._waiting) >= self._recent:      # no image for a long time: the stream is not per frame
+            return [stamp]  # a newer image came first: this one's never will
+        if (
+            len(self._waiting) >= self._recent
+        ):  # no image for a long time: the stream is not per frame
             self._waiting.discard(min(self._waiting))
         self._waiting.add(stamp)
         return []

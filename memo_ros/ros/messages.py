@@ -5,6 +5,7 @@ They walk ``get_fields_and_field_types()`` and stand in for ``rosidl_runtime_py`
 numeric arrays inline, long ones (image and cloud ``data``) abbreviated, and a
 PointCloud2 additionally decoded into a table of its points.
 """
+
 from __future__ import annotations
 
 import array
@@ -13,14 +14,30 @@ import math
 import re
 
 import numpy as np
-import yaml
 from sensor_msgs.msg import PointCloud2
+import yaml
 
 from memo_ros.ros.pointcloud import pointcloud_to_array, table_columns
 
-NUMERIC_TYPES = frozenset((
-    'boolean', 'octet', 'char', 'byte', 'float', 'double', 'long double',
-    'int8', 'uint8', 'int16', 'uint16', 'int32', 'uint32', 'int64', 'uint64'))
+NUMERIC_TYPES = frozenset(
+    (
+        'boolean',
+        'octet',
+        'char',
+        'byte',
+        'float',
+        'double',
+        'long double',
+        'int8',
+        'uint8',
+        'int16',
+        'uint16',
+        'int32',
+        'uint32',
+        'int64',
+        'uint64',
+    )
+)
 DEFAULT_TRUNCATE = 64
 PREVIEW_VALUES = 8
 
@@ -45,11 +62,14 @@ def import_message_type(type_name: str) -> type:
     try:
         module = importlib.import_module(f'{package}.{kind}')
     except ImportError:
-        raise MessageTypeError(f'unknown message type {type_name!r}: no message package {package!r} '
-                               'is installed') from None
+        raise MessageTypeError(
+            f'unknown message type {type_name!r}: no message package {package!r} is installed'
+        ) from None
     cls = getattr(module, name, None)
     if cls is None or not hasattr(cls, 'get_fields_and_field_types'):
-        raise MessageTypeError(f'unknown message type {type_name!r}: package {package!r} has no message {name!r}')
+        raise MessageTypeError(
+            f'unknown message type {type_name!r}: package {package!r} has no message {name!r}'
+        )
     return cls
 
 
@@ -127,10 +147,16 @@ def _abbreviated(values: list, element: str) -> str:
     return yaml_scalar(f'<{element}[{len(values)}]: {preview}, ...>')
 
 
-def _emit_array(key: str, value, field_type: str, pad: str, lines: list[str], truncate: int | None) -> None:
+def _emit_array(
+    key: str, value, field_type: str, pad: str, lines: list[str], truncate: int | None
+) -> None:
     """Lines of one array field: inline numbers, block list of strings or messages."""
     element = element_type(field_type)
-    items = list(value) if not isinstance(value, (np.ndarray, array.array, bytes)) else _plain_array(value, field_type)
+    items = (
+        list(value)
+        if not isinstance(value, (np.ndarray, array.array, bytes))
+        else _plain_array(value, field_type)
+    )
     if not items:
         lines.append(f'{pad}{key}: []')
     elif is_message(items[0]):
@@ -141,7 +167,7 @@ def _emit_array(key: str, value, field_type: str, pad: str, lines: list[str], tr
             if not item_lines:
                 lines.append(f'{pad}- {{}}')
                 continue
-            item_lines[0] = f'{pad}- ' + item_lines[0][len(pad) + 2:]
+            item_lines[0] = f'{pad}- ' + item_lines[0][len(pad) + 2 :]
             lines.extend(item_lines)
     elif element in NUMERIC_TYPES:
         items = [_plain_scalar(v, element) for v in items]
@@ -191,7 +217,9 @@ def format_table(names: list[str], columns: list, max_rows: int | None = None) -
     cells = [[format_cell(v) for v in column[:shown]] for column in columns]
     widths = [max([len(name)] + [len(c) for c in column]) for name, column in zip(names, cells)]
     lines = ['  '.join(name.rjust(w) for name, w in zip(names, widths))]
-    lines += ['  '.join(column[row].rjust(w) for column, w in zip(cells, widths)) for row in range(shown)]
+    lines += [
+        '  '.join(column[row].rjust(w) for column, w in zip(cells, widths)) for row in range(shown)
+    ]
     if shown < count:
         lines.append(f'... {count - shown} more points ({count} in all)')
     return lines
@@ -204,7 +232,9 @@ def pointcloud_table(msg, max_rows: int | None = None) -> list[str]:
     return format_table(names, columns, max_rows)
 
 
-def message_to_yaml(msg, truncate_length: int | None = DEFAULT_TRUNCATE, max_rows: int | None = 20) -> str:
+def message_to_yaml(
+    msg, truncate_length: int | None = DEFAULT_TRUNCATE, max_rows: int | None = 20
+) -> str:
     """A message as ``ros2 topic echo`` style YAML (no trailing '---').
 
     Numeric arrays longer than ``truncate_length`` are abbreviated (None prints
@@ -230,7 +260,13 @@ def _flatten(prefix: str, value, field_type: str, out: dict, max_array_length: i
     """Add the leaves of one field to ``out`` under dotted/indexed names."""
     if is_message(value):
         for name, sub_type in value.get_fields_and_field_types().items():
-            _flatten(f'{prefix}.{name}' if prefix else name, getattr(value, name), sub_type, out, max_array_length)
+            _flatten(
+                f'{prefix}.{name}' if prefix else name,
+                getattr(value, name),
+                sub_type,
+                out,
+                max_array_length,
+            )
     elif is_array_type(field_type):
         element = element_type(field_type)
         numeric = element in NUMERIC_TYPES

@@ -1,4 +1,5 @@
 """The one ``main`` every node shares: init, build, spin, and a one-line error for a refused configuration."""
+
 from __future__ import annotations
 
 import sys
@@ -16,8 +17,9 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
     1 if a thread of its own failed (it sets ``failure`` and shuts the context down).
 
     One executor thread per node: rclpy's multi-threaded executor left ready callbacks waiting for up to
-    seconds on these 2-core machines; a node that must not block its intake runs its work on its own thread."""
-    cv2.setNumThreads(1)            # one process per camera and stage share the cores (see memo_ros.nodes)
+    seconds on these 2-core machines; a node that must not block its intake runs its work on its own thread.
+    """
+    cv2.setNumThreads(1)  # one process per camera and stage share the cores (see memo_ros.nodes)
     rclpy.init(args=args if args is not None else sys.argv)
     try:
         node = make_node()
@@ -34,6 +36,9 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
         rclpy.try_shutdown()
     failure = getattr(node, 'failure', None)
     if failure is not None:
-        print(f'{name}: error: {" ".join(str(failure).split()) or type(failure).__name__}', file=sys.stderr)
+        print(
+            f'{name}: error: {" ".join(str(failure).split()) or type(failure).__name__}',
+            file=sys.stderr,
+        )
         return 1
     return 0

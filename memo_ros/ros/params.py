@@ -5,12 +5,18 @@ declares them (with ROS descriptors that carry the range, so
 ``ros2 param describe`` shows it), validates runtime changes, and renders the
 README's parameter table.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Callable
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.node import Node
 
 
@@ -33,7 +39,12 @@ class Param:
         if isinstance(self.default, (int, float)) and not isinstance(self.default, bool):
             if not isinstance(value, (int, float)) or isinstance(value, bool):
                 return f'{self.name} must be a number'
-            if self.low is not None and value < self.low or self.high is not None and value > self.high:
+            if (
+                self.low is not None
+                and value < self.low
+                or self.high is not None
+                and value > self.high
+            ):
                 return f'{self.name}={value} is outside [{self.low}, {self.high}]'
         if self.choices and value not in self.choices:
             return f'{self.name}={value!r} is not one of {", ".join(self.choices)}'
@@ -43,15 +54,22 @@ class Param:
         text = self.description + (f' (one of: {", ".join(self.choices)})' if self.choices else '')
         desc = ParameterDescriptor(name=self.name, description=text, read_only=self.read_only)
         if isinstance(self.default, float):
-            desc.floating_point_range = [FloatingPointRange(from_value=float(self.low), to_value=float(self.high),
-                                                            step=0.0)]
+            desc.floating_point_range = [
+                FloatingPointRange(from_value=float(self.low), to_value=float(self.high), step=0.0)
+            ]
         elif isinstance(self.default, int) and not isinstance(self.default, bool):
-            desc.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)]
+            desc.integer_range = [
+                IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)
+            ]
         return desc
 
 
-def declare(node: Node, params: tuple[Param, ...], on_change: Callable[[], None] | None = None,
-            check: Callable[[dict], object] | None = None) -> dict:
+def declare(
+    node: Node,
+    params: tuple[Param, ...],
+    on_change: Callable[[], None] | None = None,
+    check: Callable[[dict], object] | None = None,
+) -> dict:
     """Declare ``params`` on ``node`` and return their values, a dict kept current at runtime.
 
     A value out of its range, or a combination ``check(values)`` refuses by raising
@@ -109,6 +127,10 @@ def markdown_table(params: tuple[Param, ...]) -> str:
     rows = ['| parameter | type | default | range | description |', '|---|---|---|---|---|']
     for p in params:
         kind = type(p.default).__name__
-        span = ', '.join(p.choices) if p.choices else (f'[{p.low}, {p.high}]' if p.low is not None else '')
+        span = (
+            ', '.join(p.choices)
+            if p.choices
+            else (f'[{p.low}, {p.high}]' if p.low is not None else '')
+        )
         rows.append(f'| `{p.name}` | {kind} | `{p.default}` | {span} | {p.description} |')
     return '\n'.join(rows)

@@ -6,13 +6,14 @@ see :data:`CONTOUR_DTYPE`.  Clouds written here are little endian, unorganized
 (height 1) and tightly packed; clouds read may have any layout ROS allows
 (padding, row padding, big endian, ``count > 1``).
 """
+
 from __future__ import annotations
 
 import numpy as np
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
-from memo_ros.core.contours import CONTOUR_DTYPE  # noqa: F401 - DESIGN.md's contour table, re-exported
+from memo_ros.core.vision.contours import CONTOUR_DTYPE  # noqa: F401 - DESIGN.md's contour table, re-exported
 
 # PointField datatype -> numpy type code (without byte order)
 FIELD_TYPES = {
@@ -25,7 +26,9 @@ FIELD_TYPES = {
     PointField.FLOAT32: 'f4',
     PointField.FLOAT64: 'f8',
 }
-NUMPY_TO_FIELD = {np.dtype(code).newbyteorder('<'): datatype for datatype, code in FIELD_TYPES.items()}
+NUMPY_TO_FIELD = {
+    np.dtype(code).newbyteorder('<'): datatype for datatype, code in FIELD_TYPES.items()
+}
 
 
 def dtype_from_fields(fields, point_step: int, big_endian: bool = False) -> np.dtype:
@@ -42,11 +45,15 @@ def dtype_from_fields(fields, point_step: int, big_endian: bool = False) -> np.d
         base = np.dtype(order + code)
         end = int(field.offset) + base.itemsize * count
         if end > point_step:
-            raise ValueError(f'PointField {field.name!r} ends at byte {end}, beyond point_step {point_step}')
+            raise ValueError(
+                f'PointField {field.name!r} ends at byte {end}, beyond point_step {point_step}'
+            )
         names.append(field.name)
         formats.append(base if count == 1 else (base, (count,)))
         offsets.append(int(field.offset))
-    return np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': int(point_step)})
+    return np.dtype(
+        {'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': int(point_step)}
+    )
 
 
 def pointcloud_to_array(msg) -> np.ndarray:
@@ -57,11 +64,17 @@ def pointcloud_to_array(msg) -> np.ndarray:
     if height * width == 0:
         return np.zeros(0, dtype)
     if row_step < width * point_step:
-        raise ValueError(f'row_step {row_step} is smaller than width * point_step = {width * point_step}')
+        raise ValueError(
+            f'row_step {row_step} is smaller than width * point_step = {width * point_step}'
+        )
     data = np.frombuffer(memoryview(msg.data).cast('B'), np.uint8)
     if data.size < (height - 1) * row_step + width * point_step:
-        raise ValueError(f'PointCloud2 data has {data.size} bytes, too few for {height} x {width} points')
-    rows = np.lib.stride_tricks.as_strided(data, shape=(height, width * point_step), strides=(row_step, 1))
+        raise ValueError(
+            f'PointCloud2 data has {data.size} bytes, too few for {height} x {width} points'
+        )
+    rows = np.lib.stride_tricks.as_strided(
+        data, shape=(height, width * point_step), strides=(row_step, 1)
+    )
     packed = np.ascontiguousarray(rows).reshape(-1)
     return packed.view(dtype).copy()
 
@@ -73,12 +86,18 @@ def fields_from_dtype(dtype: np.dtype) -> list[PointField]:
     fields = []
     for name in dtype.names:
         field_dtype, offset = dtype.fields[name][:2]
-        base, shape = (field_dtype.base, field_dtype.shape) if field_dtype.subdtype else (field_dtype, ())
+        base, shape = (
+            (field_dtype.base, field_dtype.shape) if field_dtype.subdtype else (field_dtype, ())
+        )
         if len(shape) > 1:
-            raise ValueError(f'field {name!r} has shape {shape}; only scalars and 1-D sub-arrays fit a PointField')
+            raise ValueError(
+                f'field {name!r} has shape {shape}; only scalars and 1-D sub-arrays fit a PointField'
+            )
         datatype = NUMPY_TO_FIELD.get(base.newbyteorder('<'))
         if datatype is None:
-            raise ValueError(f'field {name!r} has type {base}, which no PointField datatype represents')
+            raise ValueError(
+                f'field {name!r} has type {base}, which no PointField datatype represents'
+            )
         count = int(shape[0]) if shape else 1
         fields.append(PointField(name=name, offset=int(offset), datatype=datatype, count=count))
     return fields
@@ -94,7 +113,14 @@ def _little_endian(dtype: np.dtype) -> np.dtype:
         else:
             formats.append(field_dtype.newbyteorder('<'))
     offsets = [dtype.fields[name][1] for name in dtype.names]
-    return np.dtype({'names': list(dtype.names), 'formats': formats, 'offsets': offsets, 'itemsize': dtype.itemsize})
+    return np.dtype(
+        {
+            'names': list(dtype.names),
+            'formats': formats,
+            'offsets': offsets,
+            'itemsize': dtype.itemsize,
+        }
+    )
 
 
 def _is_dense(array: np.ndarray) -> bool:

@@ -6,11 +6,12 @@ dotted parameter overrides (``studio.cam_front.K``, ``body.torso.length``, ...).
 with the same code as the tools, so a node and ``memo-ros`` never disagree.  The
 overrides are read, not declared, so they do not clutter ``ros2 param list``.
 """
+
 from __future__ import annotations
 
 from rclpy.node import Node
 
-from memo_ros.core.studio import WILDCARD, Studio
+from memo_ros.core.formats.studio import WILDCARD, Studio
 
 SHARED_ROOTS = ('studio', 'body', 'initial_pose')
 
@@ -28,7 +29,11 @@ def studio_from_node(node: Node) -> Studio:
         for key in keys[:-1]:
             target = target.setdefault(key, {})
         value = param.value
-        target[keys[-1]] = list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') else value
+        target[keys[-1]] = (
+            list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') else value
+        )
     if 'studio' not in nested:
-        raise ValueError('no studio parameters: start the node with --ros-args --params-file STUDIO.yaml')
+        raise ValueError(
+            'no studio parameters: start the node with --ros-args --params-file STUDIO.yaml'
+        )
     return Studio.from_yaml_dict({WILDCARD: {'ros__parameters': nested}}, 'parameters')

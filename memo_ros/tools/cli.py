@@ -4,6 +4,7 @@ Each sub-command lives in its own module exposing ``add_arguments(parser)`` and
 ``run(args) -> int``; errors a user can cause raise :class:`CliError` and end as
 one line on stderr with a non-zero exit, never a traceback.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,15 +14,27 @@ import sys
 
 # name -> (module, one-line help)
 COMMANDS = {
-    'simulate': ('memo_ros.tools.simulate', 'render a simulated scenario into a rosbag2 with ground truth'),
-    'bag': ('memo_ros.tools.bag', 'inspect, play and record rosbag2 files over DDS'),
+    'simulate': (
+        'memo_ros.tools.simulate',
+        'render a simulated scenario into a rosbag2 with ground truth',
+    ),
+    'bag': ('memo_ros.tools.bag.cli', 'inspect, play and record rosbag2 files over DDS'),
     'echo': ('memo_ros.tools.echo', 'print messages of a topic as YAML (or CSV rows)'),
-    'launch': ('memo_ros.tools.launch', 'start the graph for a studio: one contour_node per camera'),
+    'launch': (
+        'memo_ros.tools.launch',
+        'start the graph for a studio: one contour_node per camera',
+    ),
     'replay': ('memo_ros.tools.replay', 'run a bag through the live graph and record its outputs'),
     'evaluate': ('memo_ros.tools.evaluate', 'score estimated poses against ground truth'),
-    'benchmark': ('memo_ros.tools.benchmark', 'measure speed of the core and tools'),
-    'import': ('memo_ros.tools.import_videos', 'import recorded videos and their calibration into a bag and studio'),
-    'export': ('memo_ros.tools.export_videos', "export a bag's images as videos plus a calibration for other tools"),
+    'benchmark': ('memo_ros.tools.benchmarks.cli', 'measure speed of the core and tools'),
+    'import': (
+        'memo_ros.tools.import_videos',
+        'import recorded videos and their calibration into a bag and studio',
+    ),
+    'export': (
+        'memo_ros.tools.export_videos',
+        "export a bag's images as videos plus a calibration for other tools",
+    ),
 }
 
 
@@ -35,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name, (module_name, help_text) in COMMANDS.items():
         module = importlib.import_module(module_name)
-        sub_parser = sub.add_parser(name, help=help_text, description=module.__doc__.splitlines()[0])
+        sub_parser = sub.add_parser(
+            name, help=help_text, description=module.__doc__.splitlines()[0]
+        )
         module.add_arguments(sub_parser)
         sub_parser.set_defaults(_run=module.run)
     return parser
@@ -55,11 +70,15 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - a tool run ends in one line, never a traceback
         if os.environ.get('MEMO_ROS_DEBUG'):
             raise
-        print(f'memo-ros {args.command}: error: {type(exc).__name__}: {" ".join(str(exc).split())}', file=sys.stderr)
+        print(
+            f'memo-ros {args.command}: error: {type(exc).__name__}: {" ".join(str(exc).split())}',
+            file=sys.stderr,
+        )
         return 1
 
 
 if __name__ == '__main__':
     # run the importable module's main, so CliError raised by sub-commands is the class caught here
     from memo_ros.tools.cli import main as _main
+
     sys.exit(_main())

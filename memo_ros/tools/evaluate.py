@@ -12,18 +12,25 @@ and counts the frames lost after the track started
 (:mod:`memo_ros.tools.silhouette_eval`); ``--plots`` then writes the model
 over every camera's image.
 """
+
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import dataclass
+import json
 from pathlib import Path
 
 import numpy as np
 
-from memo_ros.core.body import PART_NAMES, load_default_body
-from memo_ros.core.metrics import FrameErrors, per_part_table, phase_error, pose_errors, summarize
-from memo_ros.core.rotations import quat_to_matrix
+from memo_ros.core.evaluation.metrics import (
+    FrameErrors,
+    per_part_table,
+    phase_error,
+    pose_errors,
+    summarize,
+)
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.rotations import quat_to_matrix
 from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
 
 ESTIMATE_TOPICS = ('/memo/body_poses', '/memo/joint_states')
@@ -40,20 +47,40 @@ class PoseTrack:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--truth', type=Path, help='bag with /memo/truth/* (the simulator\'s)')
-    parser.add_argument('--estimate', required=True, type=Path, help='bag with /memo/body_poses and /memo/joint_states')
-    parser.add_argument('--images', type=Path, help='the recording (camera images): score by silhouette IoU per '
-                        'camera and count frames lost, without ground truth (needs --truth or --images or both)')
-    parser.add_argument('--studio', type=Path, help='studio YAML (body height, cameras for overlays, contour_node '
-                        'settings); default: TRUTH.yaml beside the truth bag (or IMAGES.yaml), else the shipped body')
+    parser.add_argument('--truth', type=Path, help="bag with /memo/truth/* (the simulator's)")
+    parser.add_argument(
+        '--estimate',
+        required=True,
+        type=Path,
+        help='bag with /memo/body_poses and /memo/joint_states',
+    )
+    parser.add_argument(
+        '--images',
+        type=Path,
+        help='the recording (camera images): score by silhouette IoU per '
+        'camera and count frames lost, without ground truth (needs --truth or --images or both)',
+    )
+    parser.add_argument(
+        '--studio',
+        type=Path,
+        help='studio YAML (body height, cameras for overlays, contour_node '
+        'settings); default: TRUTH.yaml beside the truth bag (or IMAGES.yaml), else the shipped body',
+    )
     parser.add_argument('--tolerance-ms', type=float, default=1.0, help='stamp matching tolerance')
-    parser.add_argument('--json', action='store_true', help='print one JSON object instead of tables')
-    parser.add_argument('--per-frame', type=Path, help='write per-frame errors as CSV to this file')
-    parser.add_argument('--plots', type=Path, help='write PNG plots and overlays into this directory')
+    parser.add_argument(
+        '--json', action='store_true', help='print one JSON object instead of tables'
+    )
+    parser.add_argument(
+        '--per-frame', type=Path, help='write per-frame errors as CSV to this file'
+    )
+    parser.add_argument(
+        '--plots', type=Path, help='write PNG plots and overlays into this directory'
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
+
     if args.truth is None and args.images is None:
         raise CliError('give --truth (simulated bags) or --images (a real recording), or both')
     for name in ('truth', 'estimate', 'images'):
@@ -68,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
     if not truth.origins:
         raise CliError(f'{args.truth} has no {TRUTH_TOPICS[0]} messages')
     topics = bag_topics(args.estimate)
-    estimate = load_track(args.estimate, ESTIMATE_TOPICS if ESTIMATE_TOPICS[0] in topics else TRUTH_TOPICS)
+    estimate = load_track(
+        args.estimate, ESTIMATE_TOPICS if ESTIMATE_TOPICS[0] in topics else TRUTH_TOPICS
+    )
     if not estimate.origins:
         raise CliError(f'{args.estimate} has no {ESTIMATE_TOPICS[0]} (nor truth) messages')
     errors = match_and_measure(truth, estimate, int(args.tolerance_ms * 1e6))
@@ -78,15 +107,27 @@ def run(args: argparse.Namespace) -> int:
         _write_per_frame(args.per_frame, errors)
     if args.plots:
         from memo_ros.tools.plots import write_plots
-        summary['plots'] = [str(p) for p in write_plots(args.plots, truth, estimate, errors, body, studio,
-                                                        args.truth)]
-        from memo_ros.tools.walker_plots import has_walker_measurements, write_walker_plots
-        if has_walker_measurements(topics):      # Rohr's walker: Figs. 26, 27 and 19
-            summary['plots'] += [str(p) for p in write_walker_plots(args.plots, args.estimate, truth, estimate,
-                                                                    body, studio, args.truth)]
+
+        summary['plots'] = [
+            str(p)
+            for p in write_plots(args.plots, truth, estimate, errors, body, studio, args.truth)
+        ]
+        from memo_ros.tools.walker_plots import (
+            has_walker_measurements,
+            write_walker_plots,
+        )
+
+        if has_walker_measurements(topics):  # Rohr's walker: Figs. 26, 27 and 19
+            summary['plots'] += [
+                str(p)
+                for p in write_walker_plots(
+                    args.plots, args.estimate, truth, estimate, body, studio, args.truth
+                )
+            ]
     silhouettes = _silhouettes(args, studio, estimate) if args.images is not None else None
     if silhouettes is not None:
         from memo_ros.tools.silhouette_eval import silhouette_summary
+
         summary['silhouettes'] = silhouette_summary(silhouettes)
     if args.json:
         print(json.dumps(summary))
@@ -94,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
     print_report(summary, per_part_table(errors, PART_NAMES, height))
     if silhouettes is not None:
         from memo_ros.tools.silhouette_eval import print_silhouette_report
+
         print()
         print_silhouette_report(silhouettes)
     return 0
@@ -102,19 +144,29 @@ def run(args: argparse.Namespace) -> int:
 def run_without_truth(args: argparse.Namespace) -> int:
     """Silhouette IoU per camera, frames lost, overlays: the score of a real recording."""
     from memo_ros.tools.cli import CliError
-    from memo_ros.tools.silhouette_eval import print_silhouette_report, silhouette_summary, write_per_frame
+    from memo_ros.tools.silhouette_eval import (
+        print_silhouette_report,
+        silhouette_summary,
+        write_per_frame,
+    )
+
     studio = _find_studio(args.images, args.studio)
     if studio is None:
-        raise CliError(f'no studio for {args.images}: give --studio (cameras are needed to render the model)')
+        raise CliError(
+            f'no studio for {args.images}: give --studio (cameras are needed to render the model)'
+        )
     estimate = load_track(args.estimate, ESTIMATE_TOPICS)
     if not estimate.origins:
-        raise CliError(f'{args.estimate} has no {ESTIMATE_TOPICS[0]} messages: nothing was tracked')
+        raise CliError(
+            f'{args.estimate} has no {ESTIMATE_TOPICS[0]} messages: nothing was tracked'
+        )
     report = _silhouettes(args, studio, estimate)
     summary = silhouette_summary(report)
     if args.per_frame:
         write_per_frame(args.per_frame, report)
     if args.plots:
         from memo_ros.tools.plots import write_silhouette_plots
+
         summary['plots'] = [str(p) for p in write_silhouette_plots(args.plots, report)]
     if args.json:
         print(json.dumps(summary))
@@ -128,11 +180,21 @@ def run_without_truth(args: argparse.Namespace) -> int:
 def _silhouettes(args: argparse.Namespace, studio, estimate):
     """The silhouette report of ``estimate`` against the person segmented in ``args.images``."""
     from memo_ros.tools.cli import CliError
-    from memo_ros.tools.silhouette_eval import evaluate_silhouettes, frame_outcomes, model_shape
+    from memo_ros.tools.silhouette_eval import (
+        evaluate_silhouettes,
+        frame_outcomes,
+        model_shape,
+    )
+
     if studio is None:
         raise CliError('--images needs a studio (--studio) for the cameras')
-    return evaluate_silhouettes(args.images, estimate, frame_outcomes(args.estimate), studio,
-                                model_shape(args.estimate, studio.body))
+    return evaluate_silhouettes(
+        args.images,
+        estimate,
+        frame_outcomes(args.estimate),
+        studio,
+        model_shape(args.estimate, studio.body),
+    )
 
 
 def load_track(path: Path, topics: tuple[str, str]) -> PoseTrack:
@@ -144,9 +206,17 @@ def load_track(path: Path, topics: tuple[str, str]) -> PoseTrack:
             poses = m.message.poses
             if len(poses) != len(PART_NAMES):
                 continue
-            track.origins[stamp] = np.array([[p.position.x, p.position.y, p.position.z] for p in poses])
-            track.rotations[stamp] = quat_to_matrix(np.array(
-                [[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in poses]))
+            track.origins[stamp] = np.array(
+                [[p.position.x, p.position.y, p.position.z] for p in poses]
+            )
+            track.rotations[stamp] = quat_to_matrix(
+                np.array(
+                    [
+                        [p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w]
+                        for p in poses
+                    ]
+                )
+            )
         else:
             track.joints[stamp] = dict(zip(m.message.name, m.message.position))
     return track
@@ -165,45 +235,69 @@ def match_and_measure(truth: PoseTrack, estimate: PoseTrack, tolerance_ns: int) 
         if abs(best - stamp) <= tolerance_ns:
             pairs.append((stamp, best))
     if not pairs:
-        return FrameErrors(np.zeros(0, np.int64), np.zeros((0, len(PART_NAMES))), np.zeros((0, len(PART_NAMES))),
-                           None)
+        return FrameErrors(
+            np.zeros(0, np.int64),
+            np.zeros((0, len(PART_NAMES))),
+            np.zeros((0, len(PART_NAMES))),
+            None,
+        )
     t_o = np.stack([truth.origins[t] for t, _ in pairs])
     t_r = np.stack([truth.rotations[t] for t, _ in pairs])
     e_o = np.stack([estimate.origins[e] for _, e in pairs])
     e_r = np.stack([estimate.rotations[e] for _, e in pairs])
     joint_mm, axis_deg = pose_errors(t_o, t_r, e_o, e_r)
     phase = None
-    if all('gait_phase' in truth.joints.get(t, {}) and 'gait_phase' in estimate.joints.get(e, {})
-           for t, e in pairs):
-        phase = phase_error([estimate.joints[e]['gait_phase'] for _, e in pairs],
-                            [truth.joints[t]['gait_phase'] for t, _ in pairs])
+    if all(
+        'gait_phase' in truth.joints.get(t, {}) and 'gait_phase' in estimate.joints.get(e, {})
+        for t, e in pairs
+    ):
+        phase = phase_error(
+            [estimate.joints[e]['gait_phase'] for _, e in pairs],
+            [truth.joints[t]['gait_phase'] for t, _ in pairs],
+        )
     return FrameErrors(np.array([t for t, _ in pairs]), joint_mm, axis_deg, phase)
 
 
 def print_report(summary: dict, parts: list[dict]) -> None:
     """Human-readable tables: per part, then the summary."""
-    print(f'{"part":<12} {"joint mean mm":>13} {"joint max mm":>12} {"transl max %h":>13} '
-          f'{"axis mean deg":>13} {"axis max deg":>12}')
+    print(
+        f'{"part":<12} {"joint mean mm":>13} {"joint max mm":>12} {"transl max %h":>13} '
+        f'{"axis mean deg":>13} {"axis max deg":>12}'
+    )
     for row in parts:
-        print(f'{row["part"]:<12} {row["joint_mm_mean"]:>13.1f} {row["joint_mm_max"]:>12.1f} '
-              f'{row["translation_pct_height_max"]:>13.2f} {row["axis_deg_mean"]:>13.2f} {row["axis_deg_max"]:>12.2f}')
+        print(
+            f'{row["part"]:<12} {row["joint_mm_mean"]:>13.1f} {row["joint_mm_max"]:>12.1f} '
+            f'{row["translation_pct_height_max"]:>13.2f} {row["axis_deg_mean"]:>13.2f} {row["axis_deg_max"]:>12.2f}'
+        )
     print()
     for key, value in summary.items():
         if key in ('plots', 'silhouettes'):
             continue
-        text = 'n/a' if value is None else (f'{value:.3f}' if isinstance(value, float) else str(value))
+        text = (
+            'n/a'
+            if value is None
+            else (f'{value:.3f}' if isinstance(value, float) else str(value))
+        )
         print(f'{key:<28} {text}')
     if summary.get('plots'):
-        print(f'plots                        {len(summary["plots"])} files in '
-              f'{Path(summary["plots"][0]).parent}')
+        print(
+            f'plots                        {len(summary["plots"])} files in '
+            f'{Path(summary["plots"][0]).parent}'
+        )
 
 
 def _write_per_frame(path: Path, errors: FrameErrors) -> None:
-    header = ['stamp_ns', 'mpjpe_mm', 'joint_mm_max', 'axis_deg_max'] + (['phase_err'] if errors.phase is not None else [])
+    header = ['stamp_ns', 'mpjpe_mm', 'joint_mm_max', 'axis_deg_max'] + (
+        ['phase_err'] if errors.phase is not None else []
+    )
     lines = [','.join(header)]
     for k, stamp in enumerate(errors.stamps_ns):
-        row = [str(int(stamp)), f'{errors.mpjpe_mm[k]:.3f}', f'{errors.joint_mm[k].max():.3f}',
-               f'{errors.axis_deg[k].max():.3f}']
+        row = [
+            str(int(stamp)),
+            f'{errors.mpjpe_mm[k]:.3f}',
+            f'{errors.joint_mm[k].max():.3f}',
+            f'{errors.axis_deg[k].max():.3f}',
+        ]
         if errors.phase is not None:
             row.append(f'{errors.phase[k]:.4f}')
         lines.append(','.join(row))
@@ -212,7 +306,8 @@ def _write_per_frame(path: Path, errors: FrameErrors) -> None:
 
 
 def _find_studio(bag: Path, given: Path | None):
-    from memo_ros.core.studio import Studio
+    from memo_ros.core.formats.studio import Studio
+
     if given is not None:
         return Studio.load(given)
     beside = bag.with_name(bag.name + '.yaml')

@@ -8,61 +8,108 @@ studio (every camera's intrinsics and pose, the body, the frame rate), as
 ``memo-ros simulate`` writes it.  Videos map to calibration cameras by
 ``--names``, else by file stem when every stem names a camera, else by order.
 """
+
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 import heapq
 import os
+from pathlib import Path
 import shutil
 import sys
 import time
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
-from memo_ros.core.body import Body, load_default_body
-from memo_ros.core.calibration_formats import (READ_FORMATS, UNITS, Calibration, CalibrationError,
-                                               load_calibration, ros_name)
-from memo_ros.core.camera import Camera
-from memo_ros.core.studio import Studio
+from memo_ros.core.formats.calibration import (
+    READ_FORMATS,
+    UNITS,
+    Calibration,
+    CalibrationError,
+    load_calibration,
+    ros_name,
+)
+from memo_ros.core.formats.studio import Studio
+from memo_ros.core.geometry.body import Body, load_default_body
+from memo_ros.core.geometry.camera import Camera
 from memo_ros.ros.bagio import BagWriter, camera_info_msg, image_msg
 from memo_ros.tools.progress import Progress
 from memo_ros.tools.simulate import START_NS
 
 ENCODINGS = ('mono8', 'bgr8', 'rgb8')
-CROP_TOLERANCE = 16      # px: one H.264 macroblock; codecs pad or crop frames to a multiple of it
+CROP_TOLERANCE = 16  # px: one H.264 macroblock; codecs pad or crop frames to a multiple of it
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('kind', choices=('videos',), help='what to import: videos')
     parser.add_argument('videos', nargs='+', type=Path, help='one video per camera')
-    parser.add_argument('--calibration', '-c', type=Path, required=True,
-                        help='Qualisys .qca.txt, calibration.toml, EasyMocap folder (intri.yml + extri.yml), '
-                        'ROS calibration folder (<cam>.yaml + poses.yaml) or a memo_ros studio YAML')
+    parser.add_argument(
+        '--calibration',
+        '-c',
+        type=Path,
+        required=True,
+        help='Qualisys .qca.txt, calibration.toml, EasyMocap folder (intri.yml + extri.yml), '
+        'ROS calibration folder (<cam>.yaml + poses.yaml) or a memo_ros studio YAML',
+    )
     parser.add_argument('--calibration-format', choices=READ_FORMATS, help='skip format detection')
-    parser.add_argument('--calibration-unit', choices=tuple(UNITS), default='m',
-                        help='length unit of toml / EasyMocap translations (default m, as Pose2Sim and EasyMocap; '
-                        'Anipose and FreeMoCap use their board unit, often mm)')
-    parser.add_argument('--poses', type=Path, help='ROS calibration: the poses YAML (default poses.yaml beside)')
-    parser.add_argument('--out', '-o', type=Path, required=True,
-                        help='output bag directory; the studio YAML is written beside it as OUT.yaml')
-    parser.add_argument('--names', help='comma-separated calibration camera names of the videos, in order')
-    parser.add_argument('--rename', action='store_true', help="name each camera after its video's file stem")
+    parser.add_argument(
+        '--calibration-unit',
+        choices=tuple(UNITS),
+        default='m',
+        help='length unit of toml / EasyMocap translations (default m, as Pose2Sim and EasyMocap; '
+        'Anipose and FreeMoCap use their board unit, often mm)',
+    )
+    parser.add_argument(
+        '--poses', type=Path, help='ROS calibration: the poses YAML (default poses.yaml beside)'
+    )
+    parser.add_argument(
+        '--out',
+        '-o',
+        type=Path,
+        required=True,
+        help='output bag directory; the studio YAML is written beside it as OUT.yaml',
+    )
+    parser.add_argument(
+        '--names', help='comma-separated calibration camera names of the videos, in order'
+    )
+    parser.add_argument(
+        '--rename', action='store_true', help="name each camera after its video's file stem"
+    )
     parser.add_argument('--fps', type=float, help="frame rate (default: the videos' own)")
-    parser.add_argument('--offset', action='append', default=[], metavar='CAM=SECONDS',
-                        help='time of CAM\'s first frame after the others\' (unsynchronised rigs; repeatable)')
-    parser.add_argument('--frames', metavar='FIRST:LAST', help='frame range FIRST <= k < LAST (either may be empty)')
-    parser.add_argument('--scale', type=float, default=1.0, help='resize the images by this factor (e.g. 0.25)')
+    parser.add_argument(
+        '--offset',
+        action='append',
+        default=[],
+        metavar='CAM=SECONDS',
+        help="time of CAM's first frame after the others' (unsynchronised rigs; repeatable)",
+    )
+    parser.add_argument(
+        '--frames',
+        metavar='FIRST:LAST',
+        help='frame range FIRST <= k < LAST (either may be empty)',
+    )
+    parser.add_argument(
+        '--scale', type=float, default=1.0, help='resize the images by this factor (e.g. 0.25)'
+    )
     parser.add_argument('--encoding', choices=ENCODINGS, default='mono8')
-    parser.add_argument('--crop-tolerance', type=int, default=CROP_TOLERANCE, metavar='PX',
-                        help='accept a video up to PX pixels narrower / shorter than calibrated as cropped at the '
-                        f'right / bottom (codec alignment; default {CROP_TOLERANCE}, 0 = exact sizes only)')
-    parser.add_argument('--body', type=Path, help='body YAML for the studio (default: the shipped average adult)')
+    parser.add_argument(
+        '--crop-tolerance',
+        type=int,
+        default=CROP_TOLERANCE,
+        metavar='PX',
+        help='accept a video up to PX pixels narrower / shorter than calibrated as cropped at the '
+        f'right / bottom (codec alignment; default {CROP_TOLERANCE}, 0 = exact sizes only)',
+    )
+    parser.add_argument(
+        '--body', type=Path, help='body YAML for the studio (default: the shipped average adult)'
+    )
     parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     parser.add_argument('--force', action='store_true', help='replace an existing output')
-    parser.add_argument('--progress', action='store_true', help='show progress even when not on a terminal')
+    parser.add_argument(
+        '--progress', action='store_true', help='show progress even when not on a terminal'
+    )
 
 
 @dataclass
@@ -70,12 +117,12 @@ class VideoSource:
     """One opened video and the camera it feeds."""
 
     path: Path
-    camera: Camera            # calibrated at the video's size, before --scale
-    capture: object           # cv2.VideoCapture
+    camera: Camera  # calibrated at the video's size, before --scale
+    capture: object  # cv2.VideoCapture
     width: int
     height: int
     fps: float
-    frame_count: int          # as the container claims (may be approximate)
+    frame_count: int  # as the container claims (may be approximate)
     offset: float = 0.0
 
 
@@ -94,25 +141,44 @@ class ImportResult:
 
 def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
+
     try:
-        result = import_videos(args.videos, args.calibration, args.out, fmt=args.calibration_format,
-                               unit=args.calibration_unit, poses=args.poses,
-                               names=_split_names(args.names), rename=args.rename, fps=args.fps,
-                               offsets=parse_offsets(args.offset), frames=parse_frames(args.frames),
-                               scale=args.scale, encoding=args.encoding, crop_tolerance=args.crop_tolerance,
-                               body=Body.from_yaml(args.body) if args.body else None, storage=args.storage,
-                               force=args.force, progress=args.progress or sys.stderr.isatty())
+        result = import_videos(
+            args.videos,
+            args.calibration,
+            args.out,
+            fmt=args.calibration_format,
+            unit=args.calibration_unit,
+            poses=args.poses,
+            names=_split_names(args.names),
+            rename=args.rename,
+            fps=args.fps,
+            offsets=parse_offsets(args.offset),
+            frames=parse_frames(args.frames),
+            scale=args.scale,
+            encoding=args.encoding,
+            crop_tolerance=args.crop_tolerance,
+            body=Body.from_yaml(args.body) if args.body else None,
+            storage=args.storage,
+            force=args.force,
+            progress=args.progress or sys.stderr.isatty(),
+        )
     except (CalibrationError, VideoImportError, FileExistsError) as exc:
         raise CliError(str(exc)) from None
     for note in result.notes:
         print(f'memo-ros import: warning: {note}', file=sys.stderr)
     total = sum(result.frames.values())
-    print(f'bag        {result.bag}  ({total} images from {len(result.cameras)} cameras: '
-          + ', '.join(f'{name} {n}' for name, n in result.frames.items()) + ')')
+    print(
+        f'bag        {result.bag}  ({total} images from {len(result.cameras)} cameras: '
+        + ', '.join(f'{name} {n}' for name, n in result.frames.items())
+        + ')'
+    )
     print(f'studio     {result.studio}  ({result.frame_rate:g} frames/s)')
     for cam in result.cameras:
-        print(f'camera     {cam.name}: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, {cam.distortion_model}, '
-              f'{np.linalg.norm(cam.t_world_cam):.2f} m from the origin')
+        print(
+            f'camera     {cam.name}: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, {cam.distortion_model}, '
+            f'{np.linalg.norm(cam.t_world_cam):.2f} m from the origin'
+        )
     print(f'time       {result.seconds:.1f} s ({total / max(result.seconds, 1e-9):.1f} images/s)')
     return 0
 
@@ -152,11 +218,15 @@ def parse_offsets(items: list[str]) -> dict[str, float]:
                 raise ValueError
             offsets[name.strip()] = float(value)
         except ValueError:
-            raise VideoImportError(f'--offset {item!r}: expected CAM=SECONDS, e.g. cam02=0.033') from None
+            raise VideoImportError(
+                f'--offset {item!r}: expected CAM=SECONDS, e.g. cam02=0.033'
+            ) from None
     return offsets
 
 
-def match_videos(videos: list[Path], cameras: list[Camera], names: list[str] | None = None) -> list[Camera]:
+def match_videos(
+    videos: list[Path], cameras: list[Camera], names: list[str] | None = None
+) -> list[Camera]:
     """The calibration camera of each video: by ``names``, else by file stem if all stems match, else by order."""
     by_name = {c.name: c for c in cameras}
     if names is not None:
@@ -164,8 +234,10 @@ def match_videos(videos: list[Path], cameras: list[Camera], names: list[str] | N
             raise VideoImportError(f'--names lists {len(names)} cameras for {len(videos)} videos')
         unknown = [n for n in names if n not in by_name]
         if unknown:
-            raise VideoImportError(f'--names: no camera {", ".join(unknown)} in the calibration '
-                               f'(it has {", ".join(by_name)})')
+            raise VideoImportError(
+                f'--names: no camera {", ".join(unknown)} in the calibration '
+                f'(it has {", ".join(by_name)})'
+            )
         chosen = [by_name[n] for n in names]
     else:
         folded = {c.name.lower(): c for c in cameras}
@@ -173,8 +245,10 @@ def match_videos(videos: list[Path], cameras: list[Camera], names: list[str] | N
         if all(s in folded for s in stems):
             chosen = [folded[s] for s in stems]
         elif len(videos) != len(cameras):
-            raise VideoImportError(f'{len(videos)} videos but {len(cameras)} calibrated cameras '
-                               f'({", ".join(by_name)}): name the videos after the cameras or pass --names')
+            raise VideoImportError(
+                f'{len(videos)} videos but {len(cameras)} calibrated cameras '
+                f'({", ".join(by_name)}): name the videos after the cameras or pass --names'
+            )
         else:
             chosen = list(cameras)
     repeated = sorted({c.name for c in chosen if chosen.count(c) > 1})
@@ -183,20 +257,34 @@ def match_videos(videos: list[Path], cameras: list[Camera], names: list[str] | N
     return chosen
 
 
-def fit_camera(cam: Camera, width: int, height: int, size_known: bool, crop_tolerance: int,
-               video: Path) -> tuple[Camera, str | None]:
+def fit_camera(
+    cam: Camera, width: int, height: int, size_known: bool, crop_tolerance: int, video: Path
+) -> tuple[Camera, str | None]:
     """The camera at the video's frame size, and a note when that needed an assumption; else a one-line error."""
     if (cam.width, cam.height) == (width, height):
         return cam, None
-    resized = Camera(cam.name, width, height, cam.K, cam.D, cam.distortion_model, cam.R_world_cam, cam.t_world_cam)
+    resized = Camera(
+        cam.name,
+        width,
+        height,
+        cam.K,
+        cam.D,
+        cam.distortion_model,
+        cam.R_world_cam,
+        cam.t_world_cam,
+    )
     if not size_known:
         return resized, None
     dw, dh = cam.width - width, cam.height - height
     if 0 <= dw <= crop_tolerance and 0 <= dh <= crop_tolerance:
-        return resized, (f'{video.name} is {width}x{height}, camera {cam.name} calibrated at {cam.width}x{cam.height}: '
-                         f'taken as {dw} columns / {dh} rows cropped at the right / bottom, intrinsics unchanged')
-    raise VideoImportError(f'{video} is {width}x{height} but camera {cam.name} is calibrated for '
-                       f'{cam.width}x{cam.height}')
+        return resized, (
+            f'{video.name} is {width}x{height}, camera {cam.name} calibrated at {cam.width}x{cam.height}: '
+            f'taken as {dw} columns / {dh} rows cropped at the right / bottom, intrinsics unchanged'
+        )
+    raise VideoImportError(
+        f'{video} is {width}x{height} but camera {cam.name} is calibrated for '
+        f'{cam.width}x{cam.height}'
+    )
 
 
 def scaled_camera(cam: Camera, scale: float) -> Camera:
@@ -211,33 +299,53 @@ def scaled_camera(cam: Camera, scale: float) -> Camera:
     K[1, 1] *= sy
     K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
     K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
-    return Camera(cam.name, small.width, small.height, K, cam.D, cam.distortion_model,
-                  cam.R_world_cam, cam.t_world_cam)
+    return Camera(
+        cam.name,
+        small.width,
+        small.height,
+        K,
+        cam.D,
+        cam.distortion_model,
+        cam.R_world_cam,
+        cam.t_world_cam,
+    )
 
 
 def quiet_ffmpeg() -> None:
     """Keep FFmpeg's own log lines off stderr (our errors say what failed in one line); set before first use."""
-    os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')     # AV_LOG_QUIET, unless the user asks for more
+    os.environ.setdefault(
+        'OPENCV_FFMPEG_LOGLEVEL', '-8'
+    )  # AV_LOG_QUIET, unless the user asks for more
 
 
 def _open_video(path: Path):
     import cv2
+
     quiet_ffmpeg()
     if not path.is_file():
         raise VideoImportError(f'no video at {path}')
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise VideoImportError(f'cannot read video {path} (not a video OpenCV can decode)')
-    width, height = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    width, height = (
+        int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)),
+        int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)),
+    )
     if width <= 0 or height <= 0:
         raise VideoImportError(f'cannot read video {path}: no frame size')
-    return capture, width, height, float(capture.get(cv2.CAP_PROP_FPS)), int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    return (
+        capture,
+        width,
+        height,
+        float(capture.get(cv2.CAP_PROP_FPS)),
+        int(capture.get(cv2.CAP_PROP_FRAME_COUNT)),
+    )
 
 
 def _frames(source: VideoSource, first: int, last: int | None) -> Iterator[tuple[int, np.ndarray]]:
     """(index, BGR frame) of frames first <= k < last, decoded one at a time."""
     capture, k = source.capture, 0
-    while k < first:                      # grab() decodes without converting: exact, unlike seeking
+    while k < first:  # grab() decodes without converting: exact, unlike seeking
         if not capture.grab():
             return
         k += 1
@@ -246,8 +354,10 @@ def _frames(source: VideoSource, first: int, last: int | None) -> Iterator[tuple
         if not ok:
             return
         if frame.shape[:2] != (source.height, source.width):
-            raise VideoImportError(f'{source.path}: frame {k} is {frame.shape[1]}x{frame.shape[0]}, '
-                               f'the video said {source.width}x{source.height}')
+            raise VideoImportError(
+                f'{source.path}: frame {k} is {frame.shape[1]}x{frame.shape[0]}, '
+                f'the video said {source.width}x{source.height}'
+            )
         yield k, frame
         k += 1
 
@@ -255,6 +365,7 @@ def _frames(source: VideoSource, first: int, last: int | None) -> Iterator[tuple
 def convert_frame(bgr: np.ndarray, size: tuple[int, int], encoding: str) -> np.ndarray:
     """A decoded BGR frame resized to ``size`` (width, height) and converted to ``encoding``."""
     import cv2
+
     if (bgr.shape[1], bgr.shape[0]) != size:
         bgr = cv2.resize(bgr, size, interpolation=cv2.INTER_AREA)
     if encoding == 'mono8':
@@ -276,12 +387,27 @@ def _resolve_fps(sources: list[VideoSource], fps: float | None) -> float:
     return float(values[0])
 
 
-def import_videos(videos: list[Path], calibration: Path, out: Path, *, fmt: str | None = None, unit: str = 'm',
-                  poses: Path | None = None, names: list[str] | None = None, rename: bool = False,
-                  fps: float | None = None, offsets: dict[str, float] | None = None,
-                  frames: tuple[int, int | None] = (0, None), scale: float = 1.0, encoding: str = 'mono8',
-                  crop_tolerance: int = CROP_TOLERANCE, body: Body | None = None, storage: str = 'mcap',
-                  force: bool = False, progress: bool = False) -> ImportResult:
+def import_videos(
+    videos: list[Path],
+    calibration: Path,
+    out: Path,
+    *,
+    fmt: str | None = None,
+    unit: str = 'm',
+    poses: Path | None = None,
+    names: list[str] | None = None,
+    rename: bool = False,
+    fps: float | None = None,
+    offsets: dict[str, float] | None = None,
+    frames: tuple[int, int | None] = (0, None),
+    scale: float = 1.0,
+    encoding: str = 'mono8',
+    crop_tolerance: int = CROP_TOLERANCE,
+    body: Body | None = None,
+    storage: str = 'mcap',
+    force: bool = False,
+    progress: bool = False,
+) -> ImportResult:
     """Write the bag ``out`` and the studio ``out.yaml`` from ``videos`` calibrated by ``calibration``."""
     if encoding not in ENCODINGS:
         raise VideoImportError(f'unknown encoding {encoding!r}; known: {", ".join(ENCODINGS)}')
@@ -291,15 +417,28 @@ def import_videos(videos: list[Path], calibration: Path, out: Path, *, fmt: str 
     calib: Calibration = load_calibration(calibration, fmt=fmt, unit=unit, poses=poses)
     chosen = match_videos(videos, calib.cameras, names)
     if rename:
-        chosen = [Camera(ros_name(v.name.split('.')[0], i), c.width, c.height, c.K, c.D, c.distortion_model,
-                         c.R_world_cam, c.t_world_cam) for i, (v, c) in enumerate(zip(videos, chosen))]
+        chosen = [
+            Camera(
+                ros_name(v.name.split('.')[0], i),
+                c.width,
+                c.height,
+                c.K,
+                c.D,
+                c.distortion_model,
+                c.R_world_cam,
+                c.t_world_cam,
+            )
+            for i, (v, c) in enumerate(zip(videos, chosen))
+        ]
         if len({c.name for c in chosen}) != len(chosen):
             raise VideoImportError('--rename: two videos have the same file stem')
     offsets = dict(offsets or {})
     unknown = sorted(set(offsets) - {c.name for c in chosen})
     if unknown:
-        raise VideoImportError(f'--offset for unknown camera {", ".join(unknown)} (cameras: '
-                           f'{", ".join(c.name for c in chosen)})')
+        raise VideoImportError(
+            f'--offset for unknown camera {", ".join(unknown)} (cameras: '
+            f'{", ".join(c.name for c in chosen)})'
+        )
     out = Path(out)
     studio_path = out.with_name(out.name + '.yaml')
     if out.exists() and not force:
@@ -308,8 +447,14 @@ def import_videos(videos: list[Path], calibration: Path, out: Path, *, fmt: str 
     try:
         for video, cam in zip(videos, chosen):
             capture, width, height, rate, count = _open_video(video)
-            sources.append(VideoSource(video, cam, capture, width, height, rate, count, offsets.get(cam.name, 0.0)))
-            sources[-1].camera, note = fit_camera(cam, width, height, calib.size_known, crop_tolerance, video)
+            sources.append(
+                VideoSource(
+                    video, cam, capture, width, height, rate, count, offsets.get(cam.name, 0.0)
+                )
+            )
+            sources[-1].camera, note = fit_camera(
+                cam, width, height, calib.size_known, crop_tolerance, video
+            )
             notes += [note] if note else []
         rate = _resolve_fps(sources, fps)
         cameras = [scaled_camera(s.camera, scale) for s in sources]
@@ -320,7 +465,7 @@ def import_videos(videos: list[Path], calibration: Path, out: Path, *, fmt: str 
         try:
             counts = _write_bag(sources, cameras, out, rate, frames, encoding, storage, progress)
         except BaseException:
-            shutil.rmtree(out, ignore_errors=True)     # no half-written bag left behind
+            shutil.rmtree(out, ignore_errors=True)  # no half-written bag left behind
             raise
     finally:
         for source in sources:
@@ -328,14 +473,26 @@ def import_videos(videos: list[Path], calibration: Path, out: Path, *, fmt: str 
     empty = [name for name, n in counts.items() if n == 0]
     if empty:
         shutil.rmtree(out, ignore_errors=True)
-        raise VideoImportError(f'no frames in range {frames[0]}:{"" if frames[1] is None else frames[1]} for '
-                           f'{", ".join(empty)}')
+        raise VideoImportError(
+            f'no frames in range {frames[0]}:{"" if frames[1] is None else frames[1]} for '
+            f'{", ".join(empty)}'
+        )
     Studio(ros_name(out.name, 0), cameras, body or load_default_body(), rate).save(studio_path)
-    return ImportResult(out, studio_path, counts, cameras, rate, time.perf_counter() - start, notes)
+    return ImportResult(
+        out, studio_path, counts, cameras, rate, time.perf_counter() - start, notes
+    )
 
 
-def _write_bag(sources: list[VideoSource], cameras: list[Camera], out: Path, rate: float,
-               frames: tuple[int, int | None], encoding: str, storage: str, progress: bool) -> dict[str, int]:
+def _write_bag(
+    sources: list[VideoSource],
+    cameras: list[Camera],
+    out: Path,
+    rate: float,
+    frames: tuple[int, int | None],
+    encoding: str,
+    storage: str,
+    progress: bool,
+) -> dict[str, int]:
     """Stream every video's frames into the bag in stamp order; the number of images per camera."""
     first, last = frames
     infos = [c.to_camera_info_fields() for c in cameras]
@@ -361,7 +518,11 @@ def _write_bag(sources: list[VideoSource], cameras: list[Camera], out: Path, rat
             cam, info = cameras[i], infos[i]
             pixels = convert_frame(frame, (cam.width, cam.height), encoding)
             writer.write(f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, info))
-            writer.write(f'/{cam.name}/image_raw', stamp, image_msg(stamp, info['frame_id'], pixels, encoding))
+            writer.write(
+                f'/{cam.name}/image_raw',
+                stamp,
+                image_msg(stamp, info['frame_id'], pixels, encoding),
+            )
             counts[cam.name] += 1
             done += 1
             bar.update(done)

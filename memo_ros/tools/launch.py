@@ -5,25 +5,30 @@ prefixed with its name.  Nothing is restarted silently: when one node ends,
 the launcher says how, stops the others and exits non-zero; Ctrl-C (or
 SIGTERM) stops them all and exits 0.
 """
+
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
+from pathlib import Path
 import signal
 import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
-from memo_ros.core.studio import Studio, studio_path
+from memo_ros.core.formats.studio import Studio, studio_path
 
 STOP_GRACE_S = 5.0
 ROLES = ('all', 'cameras', 'tracking')
-REPLAY_IMAGE_QUEUE = 100     # image queue of the contour nodes when a bag is replayed into them
-REPLAY_ROI_WAIT = 0.5        # s a contour node waits for the tracked body of the previous image in a replay
-REPLAY_JOIN_TIMEOUT = 3.0    # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
-                             # and with back-pressure the player waits anyway)
+REPLAY_IMAGE_QUEUE = 100  # image queue of the contour nodes when a bag is replayed into them
+REPLAY_ROI_WAIT = (
+    0.5  # s a contour node waits for the tracked body of the previous image in a replay
+)
+REPLAY_JOIN_TIMEOUT = (
+    3.0  # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
+)
+# and with back-pressure the player waits anyway)
 
 
 @dataclass
@@ -36,14 +41,25 @@ class NodeProcess:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('studio', help='studio YAML (path, or a shipped name such as studio_orthogonal)')
-    parser.add_argument('--reliable-images', action='store_true',
-                        help='for bag replay: subscribe images reliably with a 100-image queue instead of best '
-                             'effort, and let the tracker wait up to 3 s for a frame\'s contours')
-    parser.add_argument('--role', default='all', choices=ROLES,
-                        help='what this host runs: all (default); cameras: the contour nodes (a camera host); '
-                             'tracking: the selector and tracker or the walker (the tracking host)')
-    parser.add_argument('--log-level', default='info', choices=('debug', 'info', 'warn', 'error', 'fatal'))
+    parser.add_argument(
+        'studio', help='studio YAML (path, or a shipped name such as studio_orthogonal)'
+    )
+    parser.add_argument(
+        '--reliable-images',
+        action='store_true',
+        help='for bag replay: subscribe images reliably with a 100-image queue instead of best '
+        "effort, and let the tracker wait up to 3 s for a frame's contours",
+    )
+    parser.add_argument(
+        '--role',
+        default='all',
+        choices=ROLES,
+        help='what this host runs: all (default); cameras: the contour nodes (a camera host); '
+        'tracking: the selector and tracker or the walker (the tracking host)',
+    )
+    parser.add_argument(
+        '--log-level', default='info', choices=('debug', 'info', 'warn', 'error', 'fatal')
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,35 +69,93 @@ def run(args: argparse.Namespace) -> int:
     return Launcher(nodes).run()
 
 
-def graph_commands(studio: Studio, path: Path, reliable_images: bool = False,
-                   log_level: str = 'info', role: str = 'all') -> list[NodeProcess]:
+def graph_commands(
+    studio: Studio,
+    path: Path,
+    reliable_images: bool = False,
+    log_level: str = 'info',
+    role: str = 'all',
+) -> list[NodeProcess]:
     """The processes of the graph: one contour_node per camera, in its camera's namespace, and the
     articulated tracker with its camera selector for a multi-camera studio (or one whose file configures
-    ``tracker_node``); ``role`` cameras keeps the contour nodes only, tracking the others."""
+    ``tracker_node``); ``role`` cameras keeps the contour nodes only, tracking the others.
+    """
     if role not in ROLES:
         raise ValueError(f'unknown role {role!r}; one of {", ".join(ROLES)}')
     nodes = []
     for cam in studio.camera_names if role in ('all', 'cameras') else []:
-        command = [sys.executable, '-m', 'memo_ros.nodes.contour_node', '--ros-args', '-r', f'__ns:=/{cam}',
-                   '--params-file', str(path), '--log-level', log_level]
+        command = [
+            sys.executable,
+            '-m',
+            'memo_ros.nodes.contour_node',
+            '--ros-args',
+            '-r',
+            f'__ns:=/{cam}',
+            '--params-file',
+            str(path),
+            '--log-level',
+            log_level,
+        ]
         if reliable_images:
             # replay: a burst of images re-sent to a late-matching reader must not overflow its queue
-            command += ['-p', 'reliable_images:=true', '-p', f'image_queue_depth:={REPLAY_IMAGE_QUEUE}',
-                        '-p', f'roi_wait:={REPLAY_ROI_WAIT}']
+            command += [
+                '-p',
+                'reliable_images:=true',
+                '-p',
+                f'image_queue_depth:={REPLAY_IMAGE_QUEUE}',
+                '-p',
+                f'roi_wait:={REPLAY_ROI_WAIT}',
+            ]
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
     if role == 'cameras':
         return nodes
     if len(studio.camera_names) > 1 or 'tracker_node' in studio.node_parameters:
-        nodes.append(NodeProcess('selector_node', [sys.executable, '-m', 'memo_ros.nodes.selector_node', '--ros-args',
-                                                   '--params-file', str(path), '--log-level', log_level]))
-        tracker = [sys.executable, '-m', 'memo_ros.nodes.tracker_node', '--ros-args', '--params-file', str(path),
-                   '--log-level', log_level]
+        nodes.append(
+            NodeProcess(
+                'selector_node',
+                [
+                    sys.executable,
+                    '-m',
+                    'memo_ros.nodes.selector_node',
+                    '--ros-args',
+                    '--params-file',
+                    str(path),
+                    '--log-level',
+                    log_level,
+                ],
+            )
+        )
+        tracker = [
+            sys.executable,
+            '-m',
+            'memo_ros.nodes.tracker_node',
+            '--ros-args',
+            '--params-file',
+            str(path),
+            '--log-level',
+            log_level,
+        ]
         if reliable_images:
             tracker += ['-p', f'join_timeout:={REPLAY_JOIN_TIMEOUT}']
         nodes.append(NodeProcess('tracker_node', tracker))
-    if 'walker_node' in studio.node_parameters:      # Rohr's walking tracker: the studio file configures it
-        nodes.append(NodeProcess('walker_node', [sys.executable, '-m', 'memo_ros.nodes.walker_node', '--ros-args',
-                                                 '--params-file', str(path), '--log-level', log_level]))
+    if (
+        'walker_node' in studio.node_parameters
+    ):  # Rohr's walking tracker: the studio file configures it
+        nodes.append(
+            NodeProcess(
+                'walker_node',
+                [
+                    sys.executable,
+                    '-m',
+                    'memo_ros.nodes.walker_node',
+                    '--ros-args',
+                    '--params-file',
+                    str(path),
+                    '--log-level',
+                    log_level,
+                ],
+            )
+        )
     return nodes
 
 
@@ -93,11 +167,20 @@ class Launcher:
         self._stop = threading.Event()
 
     def run(self) -> int:
-        previous = {s: signal.signal(s, lambda *_: self._stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        previous = {
+            s: signal.signal(s, lambda *_: self._stop.set())
+            for s in (signal.SIGINT, signal.SIGTERM)
+        }
         try:
             for node in self.nodes:
-                node.process = subprocess.Popen(node.command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                                text=True, bufsize=1, start_new_session=True)
+                node.process = subprocess.Popen(
+                    node.command,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.STDOUT,
+                    text=True,
+                    bufsize=1,
+                    start_new_session=True,
+                )
                 threading.Thread(target=self._relay, args=(node,), daemon=True).start()
                 self._say(f'started {node.label} (pid {node.process.pid})')
             return self._supervise()

@@ -5,36 +5,62 @@ the frame number (Rohr Figs. 26, 32-33), ``errors.png`` the per-frame errors,
 and ``overlay_<cam>_<frame>.png`` the estimated model's contours drawn on the
 camera image (Rohr Fig. 27).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from memo_ros.core.metrics import FrameErrors
+from memo_ros.core.evaluation.metrics import FrameErrors
 
 ANGLE_DEG = 180.0 / np.pi
 OVERLAY_FRAMES = 4
 VARYING_STD = 1e-3
-SILHOUETTE_BGR = (0, 255, 255)      # yellow: the outline of the whole estimated body
+SILHOUETTE_BGR = (0, 255, 255)  # yellow: the outline of the whole estimated body
 # one BGR colour per part (internal boundaries): matplotlib's tab10 colours, then light tab20 ones
-PART_BGR = ((180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214), (189, 103, 148), (75, 86, 140),
-            (194, 119, 227), (127, 127, 127), (34, 189, 188), (207, 190, 23), (232, 199, 174), (120, 187, 255),
-            (138, 223, 152), (150, 152, 255))
+PART_BGR = (
+    (180, 119, 31),
+    (14, 127, 255),
+    (44, 160, 44),
+    (40, 39, 214),
+    (189, 103, 148),
+    (75, 86, 140),
+    (194, 119, 227),
+    (127, 127, 127),
+    (34, 189, 188),
+    (207, 190, 23),
+    (232, 199, 174),
+    (120, 187, 255),
+    (138, 223, 152),
+    (150, 152, 255),
+)
 
 
-def write_plots(directory: str | Path, truth, estimate, errors: FrameErrors, body, studio,
-                truth_bag: str | Path) -> list[Path]:
+def write_plots(
+    directory: str | Path,
+    truth,
+    estimate,
+    errors: FrameErrors,
+    body,
+    studio,
+    truth_bag: str | Path,
+) -> list[Path]:
     """Write joint curves, error curves and (with a studio) image overlays into ``directory``; return the paths."""
     import matplotlib
+
     matplotlib.use('Agg')
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     truth_stamps = np.array(sorted(truth.origins), dtype=np.int64)
-    paths = [_joint_curves(directory / 'joint_curves.png', truth, estimate, body, truth_stamps),
-             _error_curves(directory / 'errors.png', errors, truth_stamps)]
+    paths = [
+        _joint_curves(directory / 'joint_curves.png', truth, estimate, body, truth_stamps),
+        _error_curves(directory / 'errors.png', errors, truth_stamps),
+    ]
     if studio is not None and len(errors.stamps_ns):
-        paths += _overlays(directory, estimate, errors, body, studio, Path(truth_bag), truth_stamps)
+        paths += _overlays(
+            directory, estimate, errors, body, studio, Path(truth_bag), truth_stamps
+        )
     return paths
 
 
@@ -88,6 +114,7 @@ def _joint_curves(path: Path, truth, estimate, body, truth_stamps: np.ndarray) -
     """Grid of small plots: each varying coordinate's truth (line) and estimate (markers) over the frame."""
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
+
     names = _coordinates_to_plot(truth, body, truth_stamps) or ['root_tz']
     cols = int(np.ceil(np.sqrt(len(names))))
     rows = int(np.ceil(len(names) / cols))
@@ -107,7 +134,7 @@ def _joint_curves(path: Path, truth, estimate, body, truth_stamps: np.ndarray) -
         ax.set_title(f'{name} ({unit})', fontsize=8)
         ax.tick_params(labelsize=7)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    for ax in axes.ravel()[len(names):]:
+    for ax in axes.ravel()[len(names) :]:
         ax.axis('off')
     axes[0, 0].legend(fontsize=6, loc='best')
     fig.supxlabel('frame', fontsize=9)
@@ -121,12 +148,15 @@ def _error_curves(path: Path, errors: FrameErrors, truth_stamps: np.ndarray) -> 
     """Per-frame MPJPE (mm), max axis error (deg) and, when walking, gait-phase error over the frame."""
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
+
     panels = 3 if errors.phase is not None else 2
     fig, axes = plt.subplots(panels, 1, figsize=(7.0, 2.0 * panels), sharex=True, squeeze=False)
     frames = _frame_numbers(np.asarray(errors.stamps_ns, np.int64), truth_stamps)
     have = errors.joint_mm.size > 0
-    series = [('MPJPE (mm)', errors.mpjpe_mm if have else np.zeros(0)),
-              ('max axis error (deg)', errors.axis_deg.max(axis=1) if have else np.zeros(0))]
+    series = [
+        ('MPJPE (mm)', errors.mpjpe_mm if have else np.zeros(0)),
+        ('max axis error (deg)', errors.axis_deg.max(axis=1) if have else np.zeros(0)),
+    ]
     if errors.phase is not None:
         series.append(('gait-phase error (cycle)', np.asarray(errors.phase)))
     for ax, (label, values) in zip(axes[:, 0], series):
@@ -146,7 +176,9 @@ def _error_curves(path: Path, errors: FrameErrors, truth_stamps: np.ndarray) -> 
 def _overlay_frames(errors: FrameErrors, truth_stamps: np.ndarray) -> dict[int, int]:
     """~4 matched truth stamps evenly spread over the sequence -> their frame numbers."""
     stamps = np.asarray(errors.stamps_ns, np.int64)
-    picks = np.unique(np.round(np.linspace(0, len(stamps) - 1, min(OVERLAY_FRAMES, len(stamps)))).astype(int))
+    picks = np.unique(
+        np.round(np.linspace(0, len(stamps) - 1, min(OVERLAY_FRAMES, len(stamps)))).astype(int)
+    )
     chosen = stamps[picks]
     return dict(zip(chosen.tolist(), _frame_numbers(chosen, truth_stamps).tolist()))
 
@@ -158,10 +190,13 @@ def _nearest(stamps: np.ndarray, stamp: int) -> int:
     return int(stamps[min(candidates, key=lambda i: abs(int(stamps[i]) - stamp))])
 
 
-def _read_images(bag: Path, cameras: list[str], stamps: set[int]) -> dict[tuple[str, int], np.ndarray]:
+def _read_images(
+    bag: Path, cameras: list[str], stamps: set[int]
+) -> dict[tuple[str, int], np.ndarray]:
     """Grey images (uint8) of ``cameras`` at header ``stamps``, stopping as soon as all are found."""
-    from memo_ros.core.encodings import image_message_to_grey
     from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
+    from memo_ros.ros.images import image_message_to_grey
+
     available = bag_topics(bag)
     topics = {f'/{c}/image_raw': c for c in cameras if f'/{c}/image_raw' in available}
     wanted = len(topics) * len(stamps)
@@ -186,36 +221,64 @@ def _read_images(bag: Path, cameras: list[str], stamps: set[int]) -> dict[tuple[
 def outline_image(grey: np.ndarray, label: np.ndarray) -> np.ndarray:
     """BGR copy of ``grey`` with each part's outline in its colour and the body silhouette in yellow."""
     import cv2
+
     image = cv2.cvtColor(np.ascontiguousarray(grey), cv2.COLOR_GRAY2BGR)
     for part in np.unique(label[label > 0]):
         mask = (label == part).astype(np.uint8)
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(image, contours, -1, PART_BGR[(int(part) - 1) % len(PART_BGR)], 1)
-    silhouette, _ = cv2.findContours((label > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    silhouette, _ = cv2.findContours(
+        (label > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+    )
     cv2.drawContours(image, silhouette, -1, SILHOUETTE_BGR, 1)
     return image
 
 
-def _overlays(directory: Path, estimate, errors: FrameErrors, body, studio, truth_bag: Path,
-              truth_stamps: np.ndarray) -> list[Path]:
+def _overlays(
+    directory: Path,
+    estimate,
+    errors: FrameErrors,
+    body,
+    studio,
+    truth_bag: Path,
+    truth_stamps: np.ndarray,
+) -> list[Path]:
     """Estimated model outlines over the camera images of ~4 frames, one file per camera and frame."""
     import cv2
-    from memo_ros.core.render import render
+
+    from memo_ros.core.geometry.render import render
+
     frames = _overlay_frames(errors, truth_stamps)
     images = _read_images(truth_bag, studio.camera_names, set(frames))
     est_stamps = np.array(sorted(estimate.origins), dtype=np.int64)
     paths = []
-    for (cam_name, stamp), grey in sorted(images.items(), key=lambda item: (item[0][1], item[0][0])):
+    for (cam_name, stamp), grey in sorted(
+        images.items(), key=lambda item: (item[0][1], item[0][0])
+    ):
         camera = studio.camera(cam_name)
         est = _nearest(est_stamps, stamp)
         scale = grey.shape[1] / camera.width
-        rendering = render(camera, estimate.rotations[est], estimate.origins[est], body.semi_axes, body.lengths,
-                           scale=scale)
+        rendering = render(
+            camera,
+            estimate.rotations[est],
+            estimate.origins[est],
+            body.semi_axes,
+            body.lengths,
+            scale=scale,
+        )
         if rendering.label.shape != grey.shape:
             continue
         image = outline_image(grey, rendering.label)
-        cv2.putText(image, f'{cam_name} frame {frames[stamp]}', (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
-                    (0, 0, 255), 1, cv2.LINE_AA)
+        cv2.putText(
+            image,
+            f'{cam_name} frame {frames[stamp]}',
+            (4, 14),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.4,
+            (0, 0, 255),
+            1,
+            cv2.LINE_AA,
+        )
         path = directory / f'overlay_{cam_name}_{frames[stamp]:04d}.png'
         cv2.imwrite(str(path), image)
         paths.append(path)
@@ -223,14 +286,18 @@ def _overlays(directory: Path, estimate, errors: FrameErrors, body, studio, trut
 
 
 # ------------------------------------------------------- without ground truth
-PERSON_TINT_BGR = (0, 0, 200)       # the segmented person, blended into the image
+PERSON_TINT_BGR = (0, 0, 200)  # the segmented person, blended into the image
 IOU_COLOURS = ('tab:blue', 'tab:orange', 'tab:green', 'tab:red', 'tab:purple', 'tab:brown')
 
 
-def silhouette_overlay(image: np.ndarray, person: np.ndarray, label: np.ndarray, text: str = '') -> np.ndarray:
+def silhouette_overlay(
+    image: np.ndarray, person: np.ndarray, label: np.ndarray, text: str = ''
+) -> np.ndarray:
     """BGR picture: the segmented person tinted red, each model part's outline in its colour, the model's
-    silhouette in yellow (the two masks the silhouette IoU compares)."""
+    silhouette in yellow (the two masks the silhouette IoU compares).
+    """
     import cv2
+
     image = np.ascontiguousarray(image)
     bgr = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image[..., :3].copy()
     tinted = bgr.astype(np.float32)
@@ -240,7 +307,9 @@ def silhouette_overlay(image: np.ndarray, person: np.ndarray, label: np.ndarray,
     out = tinted.astype(np.uint8)
     out[drawn] = picture[drawn]
     if text:
-        cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 2, cv2.LINE_AA)
+        cv2.putText(
+            out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 2, cv2.LINE_AA
+        )
         cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     return out
 
@@ -248,6 +317,7 @@ def silhouette_overlay(image: np.ndarray, person: np.ndarray, label: np.ndarray,
 def write_silhouette_plots(directory: str | Path, report) -> list[Path]:
     """Per kept frame: every camera's overlay and a side-by-side montage; and the IoU curves (iou.png)."""
     import cv2
+
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = [_iou_curves(directory / 'iou.png', report)]
@@ -267,7 +337,9 @@ def write_silhouette_plots(directory: str | Path, report) -> list[Path]:
             tiles.append(tile)
         if tiles:
             height = max(t.shape[0] for t in tiles)
-            montage = np.hstack([np.pad(t, ((0, height - t.shape[0]), (0, 2), (0, 0))) for t in tiles])
+            montage = np.hstack(
+                [np.pad(t, ((0, height - t.shape[0]), (0, 2), (0, 0))) for t in tiles]
+            )
             path = directory / f'overlay_{index:04d}.png'
             cv2.imwrite(str(path), montage)
             paths.append(path)
@@ -277,14 +349,23 @@ def write_silhouette_plots(directory: str | Path, report) -> list[Path]:
 def _iou_curves(path: Path, report) -> Path:
     """Silhouette IoU of every camera over the frame number, with the frames not tracked marked."""
     import matplotlib
+
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(7.0, 2.8))
     frames = np.arange(len(report.stamps))
     for c, name in enumerate(report.cameras):
         mean = report.summary[name]['mean']
-        ax.plot(frames, report.iou[:, c], '.-', lw=1.0, ms=2.5, color=IOU_COLOURS[c % len(IOU_COLOURS)],
-                label=f'{name} (mean {mean:.2f})')
+        ax.plot(
+            frames,
+            report.iou[:, c],
+            '.-',
+            lw=1.0,
+            ms=2.5,
+            color=IOU_COLOURS[c % len(IOU_COLOURS)],
+            label=f'{name} (mean {mean:.2f})',
+        )
     untracked = [k for k, o in enumerate(report.outcomes) if o != 'tracking']
     if untracked:
         ax.plot(untracked, np.zeros(len(untracked)), 'x', color='grey', ms=3, label='not tracked')

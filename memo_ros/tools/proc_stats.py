@@ -1,10 +1,11 @@
 """Process helpers of the process benchmarks: CPU time, peak memory and children from /proc (Linux), stop, log tail."""
+
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import signal
 import subprocess
-from pathlib import Path
 
 CLOCK_TICKS = os.sysconf('SC_CLK_TCK')
 
@@ -16,9 +17,9 @@ def _stat_fields(pid: int) -> list[str]:
 
 
 def cpu_seconds(pid: int) -> float:
-    """utime + stime of process ``pid``, seconds."""
+    """Utime + stime of process ``pid``, seconds."""
     fields = _stat_fields(pid)
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS   # fields 14 and 15 of proc(5)
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # fields 14 and 15 of proc(5)
 
 
 def _status_mb(pid: int, key: str) -> float | None:
@@ -46,10 +47,12 @@ def children(pid: int) -> dict[int, list[str]]:
         if not entry.name.isdigit():
             continue
         try:
-            if int(_stat_fields(int(entry.name))[1]) != pid:          # field 4 of proc(5): the parent's pid
+            if (
+                int(_stat_fields(int(entry.name))[1]) != pid
+            ):  # field 4 of proc(5): the parent's pid
                 continue
             command = (entry / 'cmdline').read_bytes().split(b'\0')
-        except (OSError, IndexError, ValueError):                    # ended meanwhile
+        except (OSError, IndexError, ValueError):  # ended meanwhile
             continue
         found[int(entry.name)] = [word.decode(errors='replace') for word in command if word]
     return found

@@ -1,4 +1,5 @@
 """A one-line terminal progress indicator for long tool runs."""
+
 from __future__ import annotations
 
 import sys
@@ -23,8 +24,10 @@ class Progress:
         elapsed = now - self._start
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else 0.0
-        sys.stderr.write(f'\r{self.label}: {done}/{self.total} ({100 * done / self.total:3.0f}%) '
-                         f'{rate:.1f}/s, {eta:.0f} s left ')
+        sys.stderr.write(
+            f'\r{self.label}: {done}/{self.total} ({100 * done / self.total:3.0f}%) '
+            f'{rate:.1f}/s, {eta:.0f} s left '
+        )
         sys.stderr.flush()
 
     def close(self) -> None:

@@ -10,41 +10,68 @@ the result does not depend on the machine's load.  ``--rate R`` plays with the
 recorded timing instead.  It exits when the input is exhausted and the graph
 has drained; the node logs go to OUT.log.
 """
+
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from pathlib import Path
 
-from memo_ros.core.studio import Studio
+from memo_ros.core.formats.studio import Studio
 
-OUTPUT_TOPICS = ('/memo/joint_states', '/memo/body_poses', '/memo/markers', '/memo/root_pose',
-                 '/memo/camera_assignment', '/memo/walker/measurement', '/memo/processed', '/diagnostics')
+OUTPUT_TOPICS = (
+    '/memo/joint_states',
+    '/memo/body_poses',
+    '/memo/markers',
+    '/memo/root_pose',
+    '/memo/camera_assignment',
+    '/memo/walker/measurement',
+    '/memo/processed',
+    '/diagnostics',
+)
 INPUT_SUFFIXES = ('/image_raw', '/camera_info')
 GRAPH_TIMEOUT_S = 60.0
 DRAIN_IDLE_S = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('bag', type=Path, help='input bag with /<cam>/image_raw and /<cam>/camera_info')
-    parser.add_argument('--studio', type=Path, help='studio YAML (default: BAG.yaml beside the bag)')
-    parser.add_argument('--out', '-o', type=Path, required=True, help='output bag directory (must not exist)')
-    parser.add_argument('--rate', type=float, default=0.0,
-                        help='0 (default): paced by the graph (back-pressure); R > 0: recorded timing x R')
-    parser.add_argument('--no-launch', action='store_true',
-                        help='play into a graph that is already running (started with `memo-ros launch STUDIO '
-                             '--reliable-images`, here or on other hosts) instead of launching one')
-    parser.add_argument('--frame-timeout', type=float, default=2.0,
-                        help='with back-pressure, longest wait for a frame to be done, s (default 2)')
+    parser.add_argument(
+        'bag', type=Path, help='input bag with /<cam>/image_raw and /<cam>/camera_info'
+    )
+    parser.add_argument(
+        '--studio', type=Path, help='studio YAML (default: BAG.yaml beside the bag)'
+    )
+    parser.add_argument(
+        '--out', '-o', type=Path, required=True, help='output bag directory (must not exist)'
+    )
+    parser.add_argument(
+        '--rate',
+        type=float,
+        default=0.0,
+        help='0 (default): paced by the graph (back-pressure); R > 0: recorded timing x R',
+    )
+    parser.add_argument(
+        '--no-launch',
+        action='store_true',
+        help='play into a graph that is already running (started with `memo-ros launch STUDIO '
+        '--reliable-images`, here or on other hosts) instead of launching one',
+    )
+    parser.add_argument(
+        '--frame-timeout',
+        type=float,
+        default=2.0,
+        help='with back-pressure, longest wait for a frame to be done, s (default 2)',
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
+
     studio_file = args.studio or args.bag.with_name(args.bag.name + '.yaml')
     if not args.bag.exists():
         raise CliError(f'no bag at {args.bag}')
@@ -55,16 +82,29 @@ def run(args: argparse.Namespace) -> int:
     if args.rate < 0 or args.frame_timeout <= 0:
         raise CliError('--rate must not be negative and --frame-timeout must be positive')
     cameras = Studio.load(studio_file).camera_names
-    missing = [t for t in (f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES) if t not in _bag_topics(args.bag)]
+    missing = [
+        t
+        for t in (f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES)
+        if t not in _bag_topics(args.bag)
+    ]
     if missing:
-        raise CliError(f'{args.bag} lacks the studio\'s camera topics {", ".join(missing)}')
-    report = replay(args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout, not args.no_launch)
-    print(f"replayed   {report['frames']} frames of {args.bag} in {report['seconds']:.1f} s "
-          f"({report['frames'] / max(report['seconds'], 1e-9):.1f} frames/s)")
-    print(f"processed  {report['processed']} frames reported done by the graph, "
-          f"{report['timeouts']} waits timed out")
-    print(f"recorded   {args.out}: " + ', '.join(f'{t} {n}' for t, n in sorted(report['recorded'].items())))
-    print(f"node logs  {report['log']}")
+        raise CliError(f"{args.bag} lacks the studio's camera topics {', '.join(missing)}")
+    report = replay(
+        args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout, not args.no_launch
+    )
+    print(
+        f'replayed   {report["frames"]} frames of {args.bag} in {report["seconds"]:.1f} s '
+        f'({report["frames"] / max(report["seconds"], 1e-9):.1f} frames/s)'
+    )
+    print(
+        f'processed  {report["processed"]} frames reported done by the graph, '
+        f'{report["timeouts"]} waits timed out'
+    )
+    print(
+        f'recorded   {args.out}: '
+        + ', '.join(f'{t} {n}' for t, n in sorted(report['recorded'].items()))
+    )
+    print(f'node logs  {report["log"]}')
     return 0 if report['graph_ok'] else 1
 
 
@@ -72,6 +112,7 @@ def _bag_topics(bag: Path) -> dict[str, str]:
     """The bag's topics, read before anything is launched: an unreadable bag is a one-line error."""
     from memo_ros.ros.bagio import BagError, bag_topics
     from memo_ros.tools.cli import CliError
+
     try:
         return bag_topics(bag)
     except BagError as exc:
@@ -80,7 +121,7 @@ def _bag_topics(bag: Path) -> dict[str, str]:
 
 def frame_stamp(data: bytes) -> int:
     """Header stamp (ns) of a CDR message whose first field is a std_msgs/Header (Image, CameraInfo)."""
-    sec, nanosec = struct.unpack_from('<iI', data, 4)        # after the 4-byte encapsulation header
+    sec, nanosec = struct.unpack_from('<iI', data, 4)  # after the 4-byte encapsulation header
     return sec * 1_000_000_000 + nanosec
 
 
@@ -115,14 +156,23 @@ class Pacer:
         self.frames += 1
 
 
-def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: float = 0.0,
-           frame_timeout: float = 2.0, launch_graph: bool = True) -> dict:
+def replay(
+    bag: Path,
+    studio_file: Path,
+    out: Path,
+    cameras: list[str],
+    rate: float = 0.0,
+    frame_timeout: float = 2.0,
+    launch_graph: bool = True,
+) -> dict:
     """Launch the graph for ``studio_file`` (unless it runs already), play ``bag`` into it, record its outputs
-    to ``out``; a report."""
+    to ``out``; a report.
+    """
     from std_msgs.msg import Header
 
     from memo_ros.ros.dds import player_segment, player_segment_bytes, ros_session
-    from memo_ros.tools.bag import BagPlayer, BagRecorder, PlayOptions, RecordOptions
+    from memo_ros.tools.bag.play import BagPlayer, PlayOptions
+    from memo_ros.tools.bag.record import BagRecorder, RecordOptions
     from memo_ros.tools.progress import Progress
 
     log_path = out.with_name(out.name + '.log')
@@ -130,20 +180,42 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
     inputs = [f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES]
     pacer = Pacer(frame_timeout)
     segment = player_segment_bytes(Studio.load(studio_file).cameras)
-    with tempfile.TemporaryDirectory(prefix='memo_replay_') as tmp, player_segment(segment, tmp), \
-            open(log_path, 'w', encoding='utf-8') as log, ros_session('memo_replay') as (node, executor):
-        launch = subprocess.Popen([sys.executable, '-m', 'memo_ros.tools.cli', 'launch', str(studio_file),
-                                   '--reliable-images'], stdout=log, stderr=subprocess.STDOUT) \
-            if launch_graph else None
+    with (
+        tempfile.TemporaryDirectory(prefix='memo_replay_') as tmp,
+        player_segment(segment, tmp),
+        open(log_path, 'w', encoding='utf-8') as log,
+        ros_session('memo_replay') as (node, executor),
+    ):
+        launch = (
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    '-m',
+                    'memo_ros.tools.cli',
+                    'launch',
+                    str(studio_file),
+                    '--reliable-images',
+                ],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+            if launch_graph
+            else None
+        )
         stop = threading.Event()
         spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
         try:
             node.create_subscription(Header, '/memo/processed', pacer.on_processed, 100)
             recorder = BagRecorder(node, out, RecordOptions(topics=OUTPUT_TOPICS))
             spinner.start()
-            player = BagPlayer(node, bag, PlayOptions(rate=rate, topics=inputs, wait_for_subscribers=1,
-                                                       wait_timeout=GRAPH_TIMEOUT_S),
-                               before_publish=lambda item: pacer.before_publish(item, rate == 0))
+            player = BagPlayer(
+                node,
+                bag,
+                PlayOptions(
+                    rate=rate, topics=inputs, wait_for_subscribers=1, wait_timeout=GRAPH_TIMEOUT_S
+                ),
+                before_publish=lambda item: pacer.before_publish(item, rate == 0),
+            )
             _wait_for_graph(node, recorder, player, launch)
             start = time.monotonic()
             total = sum(1 for _ in player._messages())
@@ -152,31 +224,39 @@ def replay(bag: Path, studio_file: Path, out: Path, cameras: list[str], rate: fl
             player.play()
             player.flush()
             progress.close()
-            if rate == 0 and pacer.current_ns is not None:       # the last frame
+            if rate == 0 and pacer.current_ns is not None:  # the last frame
                 with pacer._cond:
                     pacer._cond.wait_for(lambda: pacer.done_ns >= pacer.current_ns, frame_timeout)
             _drain(recorder)
             seconds = time.monotonic() - start
             recorded = dict(recorder.counts)
             graph_ok = launch is None or launch.poll() is None
-            _stop_spinner(stop, spinner)          # before the player's and recorder's entities go
+            _stop_spinner(stop, spinner)  # before the player's and recorder's entities go
             player.close()
             recorder.close()
         finally:
-            _stop_spinner(stop, spinner)          # no spin may run while the session shuts down
+            _stop_spinner(stop, spinner)  # no spin may run while the session shuts down
             if launch is not None and launch.poll() is None:
                 launch.send_signal(2)
                 try:
                     launch.wait(15)
                 except subprocess.TimeoutExpired:
                     launch.kill()
-    return {'frames': pacer.frames, 'processed': pacer.processed, 'timeouts': pacer.timeouts, 'seconds': seconds,
-            'recorded': recorded, 'log': str(log_path), 'graph_ok': graph_ok}
+    return {
+        'frames': pacer.frames,
+        'processed': pacer.processed,
+        'timeouts': pacer.timeouts,
+        'seconds': seconds,
+        'recorded': recorded,
+        'log': str(log_path),
+        'graph_ok': graph_ok,
+    }
 
 
 def _stop_spinner(stop: threading.Event, spinner: threading.Thread) -> None:
     """Stop the spin thread and wait for it: destroying entities or the context under a running spin ends
-    the process with a C++ terminate."""
+    the process with a C++ terminate.
+    """
     stop.set()
     if spinner.is_alive():
         spinner.join(timeout=5.0)
@@ -195,6 +275,7 @@ def _spin(executor, stop: threading.Event, recorder) -> None:
 def _wait_for_graph(node, recorder, player, launch) -> None:
     """Until every node subscribes the inputs and the recorder has the tracker's outputs."""
     from memo_ros.tools.cli import CliError
+
     deadline = time.monotonic() + GRAPH_TIMEOUT_S
     while True:
         ready = not player.unmatched_topics() and '/memo/joint_states' in recorder.subscriptions
@@ -203,15 +284,18 @@ def _wait_for_graph(node, recorder, player, launch) -> None:
         if launch is not None and launch.poll() is not None:
             raise CliError('the graph stopped before it was up (see the node log)')
         if time.monotonic() > deadline:
-            raise CliError(f'the graph did not come up within {GRAPH_TIMEOUT_S:.0f} s; missing: '
-                           f'{", ".join(player.unmatched_topics()) or "/memo/joint_states"}')
+            raise CliError(
+                f'the graph did not come up within {GRAPH_TIMEOUT_S:.0f} s; missing: '
+                f'{", ".join(player.unmatched_topics()) or "/memo/joint_states"}'
+            )
         time.sleep(0.2)
-    time.sleep(2.0)          # seen from here; let the nodes' readers match the player's writers too
+    time.sleep(2.0)  # seen from here; let the nodes' readers match the player's writers too
 
 
 def _drain(recorder, idle: float = DRAIN_IDLE_S, limit: float = 30.0) -> None:
     """Wait until no output arrived for ``idle`` s (the graph has drained), at most ``limit`` s."""
-    def outputs() -> int:        # /diagnostics comes every second whatever happens: not a sign of work
+
+    def outputs() -> int:  # /diagnostics comes every second whatever happens: not a sign of work
         return sum(n for topic, n in recorder.counts.items() if topic != '/diagnostics')
 
     end = time.monotonic() + limit

@@ -4,27 +4,38 @@ Per camera ``/<cam>/image_raw`` and ``/<cam>/camera_info``; the truth on
 ``/memo/truth/joint_states`` and ``/memo/truth/body_poses`` with the tracker's
 types and conventions.  The studio file ``OUT.yaml`` starts the graph.
 """
+
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
+from pathlib import Path
 import shutil
 import sys
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from memo_ros.core.body import Body, load_default_body
-from memo_ros.core.imaging import ImagingOptions, background_image, compose_frame
-from memo_ros.core.render import render
-from memo_ros.core.rotations import matrix_to_quat
-from memo_ros.core.scenarios import SCENARIOS, Scenario, make_scenario
-from memo_ros.core.studio import Studio
-from memo_ros.ros.bagio import BagWriter, camera_info_msg, image_msg, joint_state_msg, pose_array_msg
+from memo_ros.core.formats.studio import Studio
+from memo_ros.core.geometry.body import Body, load_default_body
+from memo_ros.core.geometry.render import render
+from memo_ros.core.geometry.rotations import matrix_to_quat
+from memo_ros.core.simulation.imaging import (
+    ImagingOptions,
+    background_image,
+    compose_frame,
+)
+from memo_ros.core.simulation.scenarios import SCENARIOS, Scenario, make_scenario
+from memo_ros.ros.bagio import (
+    BagWriter,
+    camera_info_msg,
+    image_msg,
+    joint_state_msg,
+    pose_array_msg,
+)
 from memo_ros.tools.progress import Progress
 
-START_NS = 1_767_225_600 * 1_000_000_000     # 2026-01-01T00:00:00Z: fixed, so runs are reproducible
+START_NS = 1_767_225_600 * 1_000_000_000  # 2026-01-01T00:00:00Z: fixed, so runs are reproducible
 ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8')
 TRUTH_JOINTS = '/memo/truth/joint_states'
 TRUTH_POSES = '/memo/truth/body_poses'
@@ -39,36 +50,61 @@ class SimulationResult:
     frames: int
     cameras: list[str]
     seconds: float
-    empty_frames: int = 0     # frames of the empty scene before the subject, not counted in ``frames``
+    empty_frames: int = (
+        0  # frames of the empty scene before the subject, not counted in ``frames``
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('scenario', help=f'one of: {", ".join(SCENARIOS)}')
-    parser.add_argument('--out', '-o', type=Path, help='output bag directory (default out/<scenario>); '
-                        'the studio YAML is written beside it as OUT.yaml')
+    parser.add_argument(
+        '--out',
+        '-o',
+        type=Path,
+        help='output bag directory (default out/<scenario>); '
+        'the studio YAML is written beside it as OUT.yaml',
+    )
     parser.add_argument('--frames', type=int, help='number of frames (default per scenario)')
     parser.add_argument('--rate', type=float, help='frames per second (default per scenario)')
     parser.add_argument('--width', type=int, default=640)
     parser.add_argument('--height', type=int, default=480)
-    parser.add_argument('--noise', type=float, default=3.0, help='sensor noise sigma in grey levels (0 = none)')
+    parser.add_argument(
+        '--noise', type=float, default=3.0, help='sensor noise sigma in grey levels (0 = none)'
+    )
     parser.add_argument('--blur', type=float, default=0.0, help='optical blur sigma in pixels')
-    parser.add_argument('--lighting-change', type=float, default=0.0,
-                        help='amplitude of a slow global lighting change (0.1 = +-10%%)')
+    parser.add_argument(
+        '--lighting-change',
+        type=float,
+        default=0.0,
+        help='amplitude of a slow global lighting change (0.1 = +-10%%)',
+    )
     parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--no-initial-pose', action='store_true',
-                        help="leave the subject's true starting pose out of the studio file, so the tracker "
-                             'initialises itself from the silhouettes')
-    parser.add_argument('--empty-frames', type=int, help='frames of the empty scene before the subject appears '
-                        '(default: 10 in the studio, 0 in the street)')
-    parser.add_argument('--encoding', default='mono8', help=f'image encoding: {", ".join(ENCODINGS)}')
+    parser.add_argument(
+        '--no-initial-pose',
+        action='store_true',
+        help="leave the subject's true starting pose out of the studio file, so the tracker "
+        'initialises itself from the silhouettes',
+    )
+    parser.add_argument(
+        '--empty-frames',
+        type=int,
+        help='frames of the empty scene before the subject appears '
+        '(default: 10 in the studio, 0 in the street)',
+    )
+    parser.add_argument(
+        '--encoding', default='mono8', help=f'image encoding: {", ".join(ENCODINGS)}'
+    )
     parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     parser.add_argument('--body', type=Path, help='body YAML (default: the shipped average adult)')
     parser.add_argument('--force', action='store_true', help='replace an existing output')
-    parser.add_argument('--progress', action='store_true', help='show progress even when not on a terminal')
+    parser.add_argument(
+        '--progress', action='store_true', help='show progress even when not on a terminal'
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
+
     if args.scenario not in SCENARIOS:
         raise CliError(f'unknown scenario {args.scenario!r}; known: {", ".join(SCENARIOS)}')
     if args.encoding not in ENCODINGS:
@@ -83,29 +119,58 @@ def run(args: argparse.Namespace) -> int:
         raise CliError('--noise, --blur and --lighting-change must not be negative')
     body = Body.from_yaml(args.body) if args.body else load_default_body()
     out = args.out or Path('out') / args.scenario
-    result = simulate(args.scenario, out, body=body, frames=args.frames, frame_rate=args.rate,
-                      width=args.width, height=args.height,
-                      options=ImagingOptions(args.noise, args.blur, args.lighting_change, args.seed),
-                      encoding=args.encoding, storage=args.storage, force=args.force,
-                      progress=args.progress or sys.stderr.isatty(), empty_frames=args.empty_frames,
-                      initial_pose=not args.no_initial_pose)
+    result = simulate(
+        args.scenario,
+        out,
+        body=body,
+        frames=args.frames,
+        frame_rate=args.rate,
+        width=args.width,
+        height=args.height,
+        options=ImagingOptions(args.noise, args.blur, args.lighting_change, args.seed),
+        encoding=args.encoding,
+        storage=args.storage,
+        force=args.force,
+        progress=args.progress or sys.stderr.isatty(),
+        empty_frames=args.empty_frames,
+        initial_pose=not args.no_initial_pose,
+    )
     print(f'scenario   {args.scenario}')
     total = result.frames + result.empty_frames
-    print(f'bag        {result.bag}  ({result.empty_frames} empty + {result.frames} frames '
-          f'x {len(result.cameras)} cameras: '
-          f'{", ".join(result.cameras)})')
+    print(
+        f'bag        {result.bag}  ({result.empty_frames} empty + {result.frames} frames '
+        f'x {len(result.cameras)} cameras: '
+        f'{", ".join(result.cameras)})'
+    )
     print(f'studio     {result.studio}')
-    print('topics     ' + ', '.join([f'/{c}/image_raw, /{c}/camera_info' for c in result.cameras]
-                                     + [TRUTH_JOINTS, TRUTH_POSES]))
+    print(
+        'topics     '
+        + ', '.join(
+            [f'/{c}/image_raw, /{c}/camera_info' for c in result.cameras]
+            + [TRUTH_JOINTS, TRUTH_POSES]
+        )
+    )
     print(f'time       {result.seconds:.1f} s ({total / max(result.seconds, 1e-9):.1f} frames/s)')
     return 0
 
 
-def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: int | None = None,
-             frame_rate: float | None = None, width: int = 640, height: int = 480,
-             options: ImagingOptions | None = None, encoding: str = 'mono8', storage: str = 'mcap',
-             force: bool = False, progress: bool = False, drop: dict[str, int] | None = None,
-             empty_frames: int | None = None, initial_pose: bool = True) -> SimulationResult:
+def simulate(
+    scenario_name: str,
+    out: Path,
+    body: Body | None = None,
+    frames: int | None = None,
+    frame_rate: float | None = None,
+    width: int = 640,
+    height: int = 480,
+    options: ImagingOptions | None = None,
+    encoding: str = 'mono8',
+    storage: str = 'mcap',
+    force: bool = False,
+    progress: bool = False,
+    drop: dict[str, int] | None = None,
+    empty_frames: int | None = None,
+    initial_pose: bool = True,
+) -> SimulationResult:
     """Simulate ``scenario_name`` into the bag ``out`` and the studio ``out.yaml``.
 
     ``drop`` maps a camera name to the frame index (counting empty frames) from which
@@ -131,16 +196,36 @@ def simulate(scenario_name: str, out: Path, body: Body | None = None, frames: in
     # Kakadiaris & Metaxas assume the initial pose known: the studio carries the subject's first true pose
     q0, _ = scenario.coordinates(np.zeros(1))
     start_pose = dict(zip(body.coordinate_names, map(float, q0[0]))) if initial_pose else {}
-    Studio(scenario_name.replace('-', '_'), scenario.cameras, body, scenario.frame_rate,
-           {'contour_node': scenario.contour_parameters, **scenario.node_parameters}, start_pose).save(studio_path)
+    Studio(
+        scenario_name.replace('-', '_'),
+        scenario.cameras,
+        body,
+        scenario.frame_rate,
+        {'contour_node': scenario.contour_parameters, **scenario.node_parameters},
+        start_pose,
+    ).save(studio_path)
     start = time.perf_counter()
     _write_bag(scenario, body, out, options, encoding, storage, progress, drop or {})
-    return SimulationResult(out, studio_path, scenario.frames, [c.name for c in scenario.cameras],
-                            time.perf_counter() - start, scenario.empty_frames)
+    return SimulationResult(
+        out,
+        studio_path,
+        scenario.frames,
+        [c.name for c in scenario.cameras],
+        time.perf_counter() - start,
+        scenario.empty_frames,
+    )
 
 
-def _write_bag(scenario: Scenario, body: Body, out: Path, options: ImagingOptions, encoding: str,
-               storage: str, progress: bool, drop: dict[str, int]) -> None:
+def _write_bag(
+    scenario: Scenario,
+    body: Body,
+    out: Path,
+    options: ImagingOptions,
+    encoding: str,
+    storage: str,
+    progress: bool,
+    drop: dict[str, int],
+) -> None:
     rng = np.random.default_rng(options.seed)
     times = np.arange(scenario.frames) / scenario.frame_rate
     q_all, phase_all = scenario.coordinates(times)
@@ -156,26 +241,51 @@ def _write_bag(scenario: Scenario, body: Body, out: Path, options: ImagingOption
     with BagWriter(out, storage) as writer:
         for k in range(total):
             stamp = START_NS + int(round(k / scenario.frame_rate * 1e9))
-            b = k - scenario.empty_frames           # body frame index; negative while the scene is empty
+            b = k - scenario.empty_frames  # body frame index; negative while the scene is empty
             rotations, origins = body.forward_kinematics(q_all[max(b, 0)])
             for cam in scenario.cameras:
                 if k >= drop.get(cam.name, total + 1):
                     continue
-                rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True,
-                                   parts=nobody if b < 0 else None)
-                pixels = compose_frame(backgrounds[cam.name], rendering, cam, options, k, rng,
-                                       colour=encoding not in ('mono8', 'mono16'))
+                rendering = render(
+                    cam,
+                    rotations,
+                    origins,
+                    body.semi_axes,
+                    body.lengths,
+                    normals=True,
+                    parts=nobody if b < 0 else None,
+                )
+                pixels = compose_frame(
+                    backgrounds[cam.name],
+                    rendering,
+                    cam,
+                    options,
+                    k,
+                    rng,
+                    colour=encoding not in ('mono8', 'mono16'),
+                )
                 # camera_info first, as a driver's calibration precedes the pixels that need it
-                writer.write(f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, infos[cam.name]))
-                writer.write(f'/{cam.name}/image_raw', stamp,
-                             image_msg(stamp, infos[cam.name]['frame_id'], *convert_encoding(pixels, encoding)))
+                writer.write(
+                    f'/{cam.name}/camera_info', stamp, camera_info_msg(stamp, infos[cam.name])
+                )
+                writer.write(
+                    f'/{cam.name}/image_raw',
+                    stamp,
+                    image_msg(
+                        stamp, infos[cam.name]['frame_id'], *convert_encoding(pixels, encoding)
+                    ),
+                )
             if b >= 0:
                 positions, velocities = list(q_all[b]), list(qd_all[b])
                 if phase_all is not None:
                     positions.append(float(phase_all[b]))
                     velocities.append(_phase_rate(phase_all, b, scenario.frame_rate))
-                writer.write(TRUTH_JOINTS, stamp, joint_state_msg(stamp, names, positions, velocities))
-                writer.write(TRUTH_POSES, stamp, pose_array_msg(stamp, origins, matrix_to_quat(rotations)))
+                writer.write(
+                    TRUTH_JOINTS, stamp, joint_state_msg(stamp, names, positions, velocities)
+                )
+                writer.write(
+                    TRUTH_POSES, stamp, pose_array_msg(stamp, origins, matrix_to_quat(rotations))
+                )
             bar.update(k + 1)
     bar.close()
 

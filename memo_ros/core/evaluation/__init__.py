@@ -1,0 +1,1 @@
+"""Scoring tracks: joint errors against truth, silhouette overlap without it."""

@@ -1,0 +1,1 @@
+"""Files: camera calibrations of other tools and the studio file."""

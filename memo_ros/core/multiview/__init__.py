@@ -1,0 +1,1 @@
+"""Kakadiaris & Metaxas: motion model, EKF, Jacobian, model nodes, force assignment, selection, tracker."""

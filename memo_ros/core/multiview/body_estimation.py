@@ -1,0 +1,192 @@
+"""The subject's body dimensions from the first frames' silhouettes of all cameras.
+
+The silhouettes of one frame carve a visual hull out of a voxel grid around
+the point where the rays through their centroids meet: a voxel is kept when
+every camera that sees it (at least two) sees it inside the person, and the
+largest connected piece is the person.  Its top over the ground is his height
+in that posture; over the first frames, the median of the taller half (the
+frames where he stands upright; one frame's segmentation error does not
+decide) scales the shipped average adult's proportions
+(config/body_average_adult.yaml, Winter's segment lengths as fractions of the
+standing height).  The girth is scaled with the height: four silhouettes do
+not measure a cross-section well enough to tell a slim subject from an
+average one (the hull of an ellipse seen from four directions overestimates
+it, arms beside the trunk are inside it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from memo_ros.core.geometry.body import Body, PartShape
+from memo_ros.core.geometry.camera import Camera
+
+
+@dataclass
+class HullMeasure:
+    """One frame's visual hull: occupied voxel centres (N, 3) of the person and his extent."""
+
+    points: np.ndarray
+    bottom: float  # lowest occupied voxel's lower face, m (world z)
+    top: float  # highest occupied voxel's upper face, m
+
+    @property
+    def height(self) -> float:
+        return self.top - self.bottom
+
+
+def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The person mask (bool (height, width)) enclosed by a contour table's closed outlines (one per id)."""
+    mask = np.zeros((height, width), np.uint8)
+    if not len(table):
+        return mask.view(bool)
+    ids = (
+        table['contour']
+        if 'contour' in (table.dtype.names or ())
+        else np.zeros(len(table), np.uint32)
+    )
+    polygons = [
+        np.round(np.stack([table['x'][ids == i], table['y'][ids == i]], axis=1)).astype(np.int32)
+        for i in np.unique(ids)
+    ]
+    cv2.fillPoly(mask, [p for p in polygons if len(p) >= 3], 1)
+    return mask.view(bool)
+
+
+def ray_meeting_point(cameras: list[Camera], masks: list[np.ndarray]) -> np.ndarray | None:
+    """Least-squares meeting point of the rays through each silhouette's centroid (None with < 2 cameras)."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    used = 0
+    for camera, mask in zip(cameras, masks):
+        ys, xs = np.nonzero(mask)
+        if not len(xs):
+            continue
+        d = camera.pixel_rays(np.array([xs.mean()]), np.array([ys.mean()]))[0]
+        projector = np.eye(3) - np.outer(d, d)
+        A += projector
+        b += projector @ np.asarray(camera.t_world_cam, float)
+        used += 1
+    return np.linalg.solve(A, b) if used >= 2 else None
+
+
+def visual_hull(
+    cameras: list[Camera],
+    masks: list[np.ndarray],
+    centre: np.ndarray,
+    half_width: float = 1.2,
+    z_range: tuple[float, float] = (-0.3, 2.5),
+    voxel: float = 0.02,
+    tolerance_px: int = 1,
+    coarse: float = 0.06,
+) -> HullMeasure | None:
+    """The person's visual hull around ``centre`` (x, y), or None when nothing survives the carving.
+
+    Carved first with ``coarse`` voxels over the whole search box, then with ``voxel``-sized ones in the
+    box of the coarse hull's largest piece (grown by two coarse voxels).
+    """
+    low = np.array([centre[0] - half_width, centre[1] - half_width, z_range[0]])
+    high = np.array([centre[0] + half_width, centre[1] + half_width, z_range[1]])
+    if coarse > voxel:
+        rough = _carve(cameras, masks, low, high, coarse, tolerance_px + 1)
+        if rough is None:
+            return None
+        low = np.maximum(low, rough.min(axis=0) - 2 * coarse)
+        high = np.minimum(high, rough.max(axis=0) + 2 * coarse)
+    points = _carve(cameras, masks, low, high, voxel, tolerance_px)
+    if points is None:
+        return None
+    return HullMeasure(
+        points, float(points[:, 2].min() - voxel / 2), float(points[:, 2].max() + voxel / 2)
+    )
+
+
+def _carve(
+    cameras: list[Camera],
+    masks: list[np.ndarray],
+    low: np.ndarray,
+    high: np.ndarray,
+    voxel: float,
+    tolerance_px: int,
+) -> np.ndarray | None:
+    """Centres (N, 3) of the largest connected piece of voxels inside every silhouette that sees them (>= 2)."""
+    axes = [np.arange(lo, hi, voxel) + voxel / 2 for lo, hi in zip(low, high)]
+    grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 3)
+    inside = np.zeros(len(grid), np.int16)
+    seen = np.zeros(len(grid), np.int16)
+    kernel = np.ones((2 * tolerance_px + 1, 2 * tolerance_px + 1), np.uint8)
+    for camera, mask in zip(cameras, masks):
+        h, w = mask.shape
+        view = (
+            camera if (camera.width, camera.height) == (w, h) else camera.scaled(w / camera.width)
+        )
+        uv = np.round(view.project(grid))
+        ok = np.all(np.isfinite(uv), axis=1)
+        u = np.where(ok, uv[:, 0], -1).astype(int)
+        v = np.where(ok, uv[:, 1], -1).astype(int)
+        ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        grown = cv2.dilate(mask.view(np.uint8), kernel).view(bool) if tolerance_px else mask
+        seen += ok
+        inside[ok] += grown[v[ok], u[ok]]
+    volume = ((seen >= 2) & (inside == seen)).reshape([len(a) for a in axes])
+    labels, count = ndimage.label(volume)
+    if count == 0:
+        return None
+    largest = 1 + int(np.argmax(ndimage.sum_labels(volume, labels, np.arange(1, count + 1))))
+    return grid[(labels == largest).reshape(-1)]
+
+
+Silhouettes = tuple[
+    list[Camera], list[np.ndarray]
+]  # one frame: the cameras and their person masks
+
+
+def measure_height(
+    frames: list[Silhouettes], voxel: float = 0.02, ground: float = 0.0
+) -> tuple[float, list[HullMeasure]]:
+    """The subject's standing height from several frames' silhouettes, and the frames' hulls.
+
+    A frame's height is the hull's top over the ground (z = ``ground``, the world's floor; the hull of the
+    feet reaches below it along the cameras' rays); the subject's is the median of the frames' heights
+    above their median, i.e. of the frames where he stands tallest (crouching does not pull it down).
+    """
+    hulls = []
+    for cameras, masks in frames:
+        centre = ray_meeting_point(cameras, masks)
+        if centre is None:
+            continue
+        hull = visual_hull(cameras, masks, centre, voxel=voxel)
+        if hull is not None and len(hull.points) > 10:
+            hulls.append(hull)
+    if not hulls:
+        raise ValueError(
+            'no frame gives a visual hull: the body needs silhouettes from at least two cameras'
+        )
+    heights = np.sort([h.top - max(h.bottom, ground) for h in hulls])
+    return float(np.median(heights[len(heights) // 2 :])), hulls
+
+
+def scaled_body(template: Body, height: float, name: str | None = None) -> Body:
+    """The template body scaled to ``height`` (standing height, m): every length, semi-axis and joint offset."""
+    if not np.isfinite(height) or height <= 0:
+        raise ValueError(f'a body height must be positive, got {height}')
+    factor = height / template.standing_height()
+    shapes = {
+        part: PartShape(s.length * factor, s.a * factor, s.b * factor)
+        for part, s in template.shapes.items()
+    }
+    offsets = {
+        joint: np.asarray(offset) * factor for joint, offset in template.joint_offsets.items()
+    }
+    return Body(shapes, offsets, name or f'estimated_{round(height * 100):d}cm')
+
+
+def estimate_body(
+    frames: list[Silhouettes], template: Body, voxel: float = 0.02, ground: float = 0.0
+) -> tuple[Body, float]:
+    """The template scaled to the height measured from the frames' silhouettes; and that height, m."""
+    height, _ = measure_height(frames, voxel, ground)
+    return scaled_body(template, height), height

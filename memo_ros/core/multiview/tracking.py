@@ -1,0 +1,546 @@
+"""The articulated multi-camera tracker (Kakadiaris & Metaxas §2-4): one frame in, one posterior out.
+
+Per frame: predict with the shared motion model; per camera, Step 1 of the force
+assignment on its contour samples; then an iterated EKF update whose
+measurements, relinearised at every iterate, are each matched sample's image
+force along the contour normal (eq. 14: the component across the contour, the
+one a contour can measure) and the normal force k_z - n (eq. 15) of side nodes,
+both through the Jacobian L (eq. 9, 16).  A sample only acts on a part whose
+camera the selector chose for it.  No contour anywhere, or an inconsistent
+filter for several frames, means tracking is lost: it is reported and the pose
+re-initialised from the silhouettes, never published as if it were tracked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+
+from memo_ros.core.geometry.body import PART_NAMES, Body
+from memo_ros.core.geometry.camera import Camera
+from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
+from memo_ros.core.multiview.correspondence import (
+    Candidates,
+    Matches,
+    assign_forces,
+    contour_rays,
+    rig_on_outline,
+    rig_outline_candidates,
+)
+from memo_ros.core.multiview.ekf import ArticulatedEKF, Measurements, UpdateReport
+from memo_ros.core.multiview.kinematic_jacobian import (
+    chain_axes,
+    chain_membership,
+    normal_jacobian,
+    projected_rows,
+)
+from memo_ros.core.multiview.model_nodes import model_nodes
+from memo_ros.core.multiview.motion import (
+    ConstantVelocity,
+    ProcessNoise,
+    coordinate_rates,
+)
+
+WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
+REFERENCE_SPACING_PX = (
+    2.0  # the sample spacing the noise parameters refer to (contour_node's contour_step)
+)
+
+# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend)
+JOINT_LIMITS: dict[str, tuple[float, float]] = {
+    'elbow_l_y': (0.0, 2.6),
+    'elbow_r_y': (0.0, 2.6),
+    'wrist_l_y': (-1.3, 1.3),
+    'wrist_r_y': (-1.3, 1.3),
+    'wrist_l_x': (-0.6, 0.6),
+    'wrist_r_x': (-0.6, 0.6),
+    'knee_l_y': (-2.6, 0.0),
+    'knee_r_y': (-2.6, 0.0),
+    'ankle_l_y': (-0.9, 0.9),
+    'ankle_r_y': (-0.9, 0.9),
+}
+
+
+@dataclass
+class TrackerSettings:
+    """Noises, gates and iteration counts of the tracker (the node's parameters)."""
+
+    sigma_px: float = 1.0  # image force noise across the contour, pixels
+    sigma_rim_px: float = (
+        3.0  # the same across a part's end, where contour smoothing rounds the tips
+    )
+    sigma_normal: float = 0.0  # normal force noise (unit vectors); 0 switches eq. 15 off (k_z from
+    # pixel-staircase tangents is biased; it made the arm worse)
+    search_px: float = 25.0  # largest image distance of a sample to its node
+    gate_sigma: float = 4.0  # Mahalanobis gate on each measurement's innovation
+    iterations: int = 2  # iterated-EKF relinearisations per frame
+    outline_probe_px: float = (
+        2.0  # a node is on the predicted outline when the body leaves background this far out
+    )
+    symmetric: bool = (
+        False  # every predicted-outline node also pulls on its nearest compatible sample
+    )
+    contour_smoothing: float = (
+        2.0  # the contour node's Gaussian smoothing, px: samples it moved count less
+    )
+    smoothing_shift: bool = (
+        False  # also move samples back by the first-order shift (overshoots at thin tips)
+    )
+    limit_sigma: float = 0.02  # joint limits as soft pseudo-measurements, rad (0 = no limits)
+    ring_spacing: float = 0.03  # m between node rings along a part
+    min_matched_fraction: float = (
+        0.3  # fewer matched samples than this fraction = inconsistent frame
+    )
+    nis_limit: float = 30.0  # mean NIS above this = inconsistent frame
+    lost_after: int = 5  # inconsistent (or empty) frames in a row before tracking is lost
+    init_sigma_translation: float = 0.05
+    init_sigma_rotation: float = 0.1
+    init_iterations: int = 15
+    init_headings: int = 8
+    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
+
+
+@dataclass
+class FrameResult:
+    """The tracker's answer for one frame."""
+
+    stamp_ns: int
+    status: str  # waiting, tracking or lost
+    q: np.ndarray | None = None
+    qdot: np.ndarray | None = None  # time derivatives of q (JointState velocities)
+    covariance: np.ndarray | None = None
+    rotations: np.ndarray | None = None
+    origins: np.ndarray | None = None
+    samples: int = 0  # contour samples in
+    matched: int = 0  # tied to a node of a selected camera
+    unselected: int = 0  # tied to a part whose camera was not selected
+    report: UpdateReport = field(default_factory=UpdateReport)
+    initialised: bool = False  # this frame (re)started the track
+    seconds: float = 0.0
+    reason: str = ''
+
+
+class ArticulatedTracker:
+    """Tracks the body in a rig of calibrated cameras from their occluding contours."""
+
+    def __init__(
+        self,
+        body: Body,
+        cameras: list[Camera],
+        settings: TrackerSettings | None = None,
+        initial_pose: np.ndarray | None = None,
+    ) -> None:
+        self.body = body
+        self.cameras = {c.name: c for c in cameras}
+        self.settings = settings or TrackerSettings()
+        self.initial_pose = None if initial_pose is None else np.asarray(initial_pose, float)
+        self.model = ConstantVelocity(body, self.settings.process_noise)
+        self.ekf = ArticulatedEKF(self.model)
+        self.nodes = model_nodes(body, ring_spacing=self.settings.ring_spacing)
+        self.affects = chain_membership(body)
+        self.limit_index = np.array([body.coordinate_index(n) for n in JOINT_LIMITS], int)
+        self.limit_low = np.array([lo for lo, _ in JOINT_LIMITS.values()])
+        self.limit_high = np.array([hi for _, hi in JOINT_LIMITS.values()])
+        self.reset()
+
+    # ------------------------------------------------------------ state
+    def reset(self, use_initial_pose: bool = True) -> None:
+        """Forget the track: the next frame with contours initialises again, from the studio's initial
+        pose (a user reset, a bag loop) or, after a lost track, from the silhouettes.
+        """
+        self.status = WAITING
+        self.stamp_ns: int | None = None
+        self.bad_frames = 0
+        self.pending_pose: np.ndarray | None = self.initial_pose if use_initial_pose else None
+
+    def apply_settings(self, settings: TrackerSettings) -> None:
+        """New noises, gates and limits from the next frame on; the current estimate is kept."""
+        self.settings = settings
+        self.model = ConstantVelocity(self.body, settings.process_noise)
+        self.ekf.model = self.model
+
+    def set_pose(self, q: np.ndarray) -> None:
+        """Use ``q`` (and zero velocity) at the next frame, like robot_localization's set_pose."""
+        q = np.asarray(q, float)
+        if q.shape != (self.body.n_coordinates,) or not np.all(np.isfinite(q)):
+            raise ValueError(f'a pose needs {self.body.n_coordinates} finite coordinates')
+        self.reset()
+        self.pending_pose = q
+
+    # ------------------------------------------------------------ frames
+    def step(
+        self,
+        stamp_ns: int,
+        contours: dict[str, np.ndarray],
+        selected: dict[str, np.ndarray] | None = None,
+    ) -> FrameResult:
+        """Track one frame: contour tables per camera; ``selected`` maps a camera to its (P,) part mask."""
+        start = time.perf_counter()
+        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
+        samples = sum(len(t) for t in contours.values())
+        if not samples:
+            return self._no_body(stamp_ns, start)
+        rays = {
+            c: contour_rays(
+                self.cameras[c], t, self.settings.contour_smoothing, self.settings.smoothing_shift
+            )
+            for c, t in contours.items()
+        }
+        masks = {
+            c: (
+                np.ones(len(PART_NAMES), bool)
+                if selected is None or c not in selected
+                else np.asarray(selected[c], bool)
+            )
+            for c in contours
+        }
+        initialised = False
+        if self.status != TRACKING:
+            self._initialise(stamp_ns, contours, rays)
+            initialised = True
+        else:
+            self.ekf.predict((stamp_ns - self.stamp_ns) * 1e-9)
+        measure = self._measurement_function(contours, rays, masks)
+        report = self.ekf.update(measure, self.settings.iterations, self.settings.gate_sigma)
+        self.stamp_ns = stamp_ns
+        matched, unselected = self._last_counts
+        consistent = (
+            matched >= self.settings.min_matched_fraction * samples
+            and not report.nis > self.settings.nis_limit
+        )
+        self.bad_frames = 0 if consistent else self.bad_frames + 1
+        if self.bad_frames >= self.settings.lost_after:
+            self.reset(use_initial_pose=False)
+            self.status = LOST
+            return FrameResult(
+                stamp_ns,
+                LOST,
+                samples=samples,
+                matched=matched,
+                report=report,
+                seconds=time.perf_counter() - start,
+                reason=f'filter inconsistent for {self.settings.lost_after} frames '
+                f'(NIS {report.nis:.1f}, {report.used}/{samples} samples used)',
+            )
+        self.status = TRACKING
+        rotations, origins = self.body.forward_kinematics(self.ekf.q)
+        return FrameResult(
+            stamp_ns,
+            TRACKING,
+            self.ekf.q.copy(),
+            coordinate_rates(self.ekf.q, self.ekf.v, self.model.groups),
+            self.ekf.P.copy(),
+            rotations,
+            origins,
+            samples,
+            matched,
+            unselected,
+            report,
+            initialised,
+            time.perf_counter() - start,
+            '' if consistent else 'inconsistent frame',
+        )
+
+    def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
+        """No contour from any camera: predict while the track is young, then lose it."""
+        if self.status != TRACKING:
+            return FrameResult(
+                stamp_ns,
+                self.status,
+                seconds=time.perf_counter() - start,
+                reason='no contours from any camera',
+            )
+        self.bad_frames += 1
+        if self.bad_frames >= self.settings.lost_after:
+            self.reset(use_initial_pose=False)
+            self.status = LOST
+            return FrameResult(
+                stamp_ns,
+                LOST,
+                seconds=time.perf_counter() - start,
+                reason=f'no camera saw the body for {self.settings.lost_after} frames',
+            )
+        self.ekf.predict((stamp_ns - self.stamp_ns) * 1e-9)
+        self.stamp_ns = stamp_ns
+        rotations, origins = self.body.forward_kinematics(self.ekf.q)
+        return FrameResult(
+            stamp_ns,
+            TRACKING,
+            self.ekf.q.copy(),
+            coordinate_rates(self.ekf.q, self.ekf.v, self.model.groups),
+            self.ekf.P.copy(),
+            rotations,
+            origins,
+            seconds=time.perf_counter() - start,
+            reason='no contours: predicted only',
+        )
+
+    # ------------------------------------------------------------ measurement model
+    def _candidates(
+        self,
+        cams: list[Camera],
+        rays: dict,
+        rotations: np.ndarray,
+        origins: np.ndarray,
+        frame: dict,
+    ) -> list[Candidates]:
+        """Per camera, the nodes that may be on an outline near its samples.  Which nodes, and which are on the
+        predicted outline (:class:`FirstOutline`, kept in ``frame``), is decided once per frame (at the first
+        linearisation, like a per-frame visibility test) and kept through the iterations.
+        """
+        if not frame:
+            out = []
+            for cam, cand in zip(
+                cams, rig_outline_candidates(cams, self.nodes, rotations, origins)
+            ):
+                near = np.all(np.isfinite(cand.uv), axis=1)
+                if len(
+                    rays[cam.name].uv
+                ):  # nodes no sample can reach (twice the search radius) are never matched
+                    near[near] = rays[cam.name].within(cand.uv[near], 2 * self.settings.search_px)
+                out.append(cand.subset(near))
+            frame['outline'] = FirstOutline(
+                cams, out, rotations, origins, self.body, self.settings.outline_probe_px
+            )
+            return out
+        cands = rig_outline_candidates(cams, self.nodes, rotations, origins, frame['outline'].keys)
+        return [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in cands]
+
+    def _limit_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Joint limits as pseudo-measurements (soft inequality constraints), active where q leaves its range."""
+        if self.settings.limit_sigma <= 0:
+            return None
+        v = q[self.limit_index]
+        target = np.clip(v, self.limit_low, self.limit_high)
+        active = target != v
+        if not active.any():
+            return None
+        H = np.zeros((int(active.sum()), self.body.n_coordinates))
+        H[np.arange(len(H)), self.limit_index[active]] = 1.0
+        return H, target[active] - v[active], np.full(len(H), self.settings.limit_sigma)
+
+    def _measurement_function(self, contours, rays, masks):
+        """measure(q) -> Measurements: the forces of eq. 14-15 linearised at q (Jacobians of eq. 9, 16)."""
+        s = self.settings
+        n = self.body.n_coordinates
+        self._last_counts = (0, 0)
+        frame: dict[
+            str, FirstOutline
+        ] = {}  # the first linearisation's outline test (see _candidates)
+        # noise per unit of contour length: denser samples each carry less independent information
+        density = {
+            c: np.sqrt(REFERENCE_SPACING_PX / sample_spacing(t)) for c, t in contours.items()
+        }
+
+        def measure(q: np.ndarray) -> Measurements:
+            rotations, origins = self.body.forward_kinematics(q)
+            chain = chain_axes(self.body, q, rotations, origins, self.affects)
+            parts, points, g, rows_r, rows_s, normal_rows = [], [], [], [], [], []
+            matched = unselected = 0
+            cams = [self.cameras[c] for c in contours]
+            cands = self._candidates(cams, rays, rotations, origins, frame)
+            outline = frame['outline']
+            first = [outline.index(k, cand) for k, cand in enumerate(cands)]
+            if s.symmetric:  # every usable node pulls: all of them are needed
+                for cand, usable in zip(cands, outline.usable(first)):
+                    cand.usable = usable
+            forces = [
+                assign_forces(rays[cam.name], cand, self.nodes.epsilon, s.search_px, s.symmetric)
+                for cam, cand in zip(cams, cands)
+            ]
+            if (
+                not s.symmetric
+            ):  # a sample whose nearest node is not on the predicted outline is dropped
+                usable = outline.usable([f[m.node] for f, m in zip(first, forces)])
+                forces = [
+                    Matches(m.sample[on], m.node[on], m.distance[on])
+                    for m, on in zip(forces, usable)
+                ]
+            for cam, cand, m in zip(cams, cands, forces):
+                cam_name = cam.name
+                cam_rays = rays[cam_name]
+                use = masks[cam_name][cand.part[m.node]]
+                unselected += int(len(use) - np.count_nonzero(use))
+                sample, node = m.sample[use], m.node[use]
+                tied = np.zeros(len(cam_rays.uv), bool)
+                tied[sample] = True
+                matched += int(np.count_nonzero(tied))
+                if not len(sample):
+                    continue
+                parts.append(cand.part[node])
+                points.append(cand.points[node])
+                tied_nodes = np.zeros(
+                    len(cand), bool
+                )  # eq. 9: H at each node tied to a sample, camera frame
+                tied_nodes[node] = True
+                J_cam = cam.projection_jacobian_camera(
+                    cam.world_to_camera(cand.points[tied_nodes])
+                )
+                m_out = cam_rays.outward[sample]
+                J_cam = J_cam[(np.cumsum(tied_nodes) - 1)[node]]
+                g.append(
+                    (m_out[:, 0, None] * J_cam[:, 0] + m_out[:, 1, None] * J_cam[:, 1])
+                    @ cam.R_world_cam.T
+                )  # eq. 9: m^T H R^-1
+                offset = cam_rays.uv[sample] - cand.uv[node]
+                rows_r.append(m_out[:, 0] * offset[:, 0] + m_out[:, 1] * offset[:, 1])  # eq. 14
+                side = ~cand.rim[node]
+                # the smoothing correction is itself uncertain: its size joins the noise
+                sigma = np.where(side, s.sigma_px, s.sigma_rim_px) * density[cam_name]
+                rows_s.append(np.hypot(sigma, cam_rays.bias[sample]))
+                if s.sigma_normal > 0 and side.any():
+                    normals = cand.normal[node][side]
+                    Jn = normal_jacobian(
+                        chain, parts[-1][side], normals, rotations[parts[-1][side]][:, :, 2]
+                    )
+                    normal_rows.append(
+                        (
+                            Jn.reshape(-1, n),
+                            (cam_rays.k[sample][side] - normals).reshape(-1),  # eq. 15
+                            np.full(3 * int(side.sum()), s.sigma_normal),
+                        )
+                    )
+            # eq. 9: m^T H R^-1 L, every camera's image forces at once
+            rows_H = (
+                [
+                    projected_rows(
+                        chain, np.concatenate(parts), np.concatenate(points), np.concatenate(g)
+                    )
+                ]
+                if parts
+                else []
+            )
+            for H, r, sigma in normal_rows:
+                rows_H.append(H), rows_r.append(r), rows_s.append(sigma)
+            self._last_counts = (matched, unselected)
+            limits = self._limit_rows(q)
+            if limits is not None:
+                rows_H.append(limits[0]), rows_r.append(limits[1]), rows_s.append(limits[2])
+            if not rows_r:
+                return Measurements.empty(n)
+            return Measurements(
+                np.concatenate(rows_H), np.concatenate(rows_r), np.concatenate(rows_s)
+            )
+
+        return measure
+
+    # ------------------------------------------------------------ initialisation
+    def _initialise(self, stamp_ns: int, contours, rays) -> None:
+        """Start from the given pose, or from the silhouettes: root from the rays through their centres,
+        a standing posture at the best of several headings, refined by the update itself.
+        """
+        s = self.settings
+        sigma_q = np.full(self.body.n_coordinates, s.init_sigma_rotation)
+        sigma_q[:3] = s.init_sigma_translation
+        sigma_v = np.full(self.body.n_coordinates, 0.5)
+        sigma_v[:3] = 0.3
+        if self.pending_pose is not None:
+            self.ekf.initialize(self.pending_pose, None, sigma_q, sigma_v)
+            return
+        centre = triangulate_centre(
+            [self.cameras[c] for c in contours], [contours[c] for c in contours]
+        )
+        neutral = self.body.neutral()
+        best = None
+        for k in range(max(s.init_headings, 1)):
+            q = neutral.copy()
+            heading = 2 * np.pi * k / max(s.init_headings, 1)
+            q[3:6] = matrix_to_rotvec(rot_z(heading))
+            if centre is not None:
+                q[0:2] = centre[0:2]
+            self.ekf.initialize(q, None, np.where(np.arange(len(q)) < 3, 0.3, 0.5), sigma_v)
+            masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+            report = self.ekf.update(
+                self._measurement_function(contours, rays, masks), s.init_iterations, gate=1e6
+            )
+            score = (self._last_counts[0], -report.nis if np.isfinite(report.nis) else -np.inf)
+            if best is None or score > best[0]:
+                best = (score, self.ekf.q.copy())
+        self.ekf.initialize(best[1], None, sigma_q, sigma_v)
+
+
+class FirstOutline:
+    """The cameras' candidate nodes at a frame's first linearisation and which of them are on the predicted outline
+    there (:func:`rig_on_outline`).  The test is made on demand, once per node and frame, for all cameras at once:
+    only the nodes that samples are tied to need it, and the iterations keep the first linearisation's answer.
+    """
+
+    def __init__(
+        self,
+        cameras: list[Camera],
+        cands: list[Candidates],
+        rotations: np.ndarray,
+        origins: np.ndarray,
+        body: Body,
+        probe_px: float,
+    ) -> None:
+        self.cameras, self.cands, self.rotations, self.origins = cameras, cands, rotations, origins
+        self.body, self.probe_px = body, probe_px
+        self._order = [np.argsort(c.key) for c in cands]
+        self.keys = [c.key[o] for c, o in zip(cands, self._order)]  # sorted, per camera
+        self._state = [
+            np.full(len(c), -1, np.int8) for c in cands
+        ]  # -1 untested, 0 off the outline, 1 on it
+
+    def index(self, k: int, cand: Candidates) -> np.ndarray:
+        """(C,) where each node of camera k's ``cand`` (all among its :attr:`keys`) is among the first
+        linearisation's candidates.
+        """
+        if cand is self.cands[k]:
+            return np.arange(len(cand))
+        return self._order[k][np.searchsorted(self.keys[k], cand.key)]
+
+    def usable(self, index: list[np.ndarray]) -> list[np.ndarray]:
+        """Per camera, True where its first-linearisation candidates ``index[k]`` are on the predicted outline."""
+        todo = [
+            np.flatnonzero(
+                np.bincount(i[state[i] < 0], minlength=len(state))
+            )  # each node once, in order
+            for i, state in zip(index, self._state)
+        ]
+        if any(len(t) for t in todo):
+            flags = rig_on_outline(
+                self.cameras,
+                [c.subset(t) for c, t in zip(self.cands, todo)],
+                self.rotations,
+                self.origins,
+                self.body.semi_axes,
+                self.body.lengths,
+                self.probe_px,
+            )
+            for state, t, f in zip(self._state, todo, flags):
+                state[t] = f
+        return [state[i] == 1 for i, state in zip(index, self._state)]
+
+
+def sample_spacing(table: np.ndarray) -> float:
+    """Median pixel distance between consecutive samples of the same contour (REFERENCE_SPACING_PX if unknown)."""
+    if len(table) < 2:
+        return REFERENCE_SPACING_PX
+    same = (
+        table['contour'][1:] == table['contour'][:-1]
+        if 'contour' in table.dtype.names
+        else np.ones(len(table) - 1, bool)
+    )
+    steps = np.hypot(np.diff(table['x']), np.diff(table['y']))[same]
+    median = float(np.median(steps)) if len(steps) else 0.0
+    return median if median > 0 else REFERENCE_SPACING_PX
+
+
+def triangulate_centre(cameras: list[Camera], tables: list[np.ndarray]) -> np.ndarray | None:
+    """Least-squares meeting point of the rays through each camera's contour centroid (None with < 2 cameras)."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    used = 0
+    for cam, table in zip(cameras, tables):
+        if not len(table):
+            continue
+        d = cam.pixel_rays(np.array([table['x'].mean()]), np.array([table['y'].mean()]))[0]
+        proj = np.eye(3) - np.outer(d, d)
+        A += proj
+        b += proj @ np.asarray(cam.t_world_cam, float)
+        used += 1
+    if used < 2:
+        return None
+    return np.linalg.solve(A, b)

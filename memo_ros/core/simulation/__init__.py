@@ -1,0 +1,1 @@
+"""The studio simulator: camera rigs, motions and the grey-value pictures rendered from them."""

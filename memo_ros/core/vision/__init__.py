@@ -1,0 +1,1 @@
+"""The image front end: encodings, change detection (Rohr eq. 1), cleanup, backgrounds, contours, edges."""

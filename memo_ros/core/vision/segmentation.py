@@ -1,0 +1,411 @@
+"""Person segmentation: raw change masks, Rohr's binary cleanup, regions with rectangle and outline.
+
+Two segmenters give a raw boolean mask of "person" pixels:
+
+- :class:`ChangeSegmenter`: Rohr §4.1, eq. (1) against the previous frame
+  (:class:`~memo_ros.core.vision.change_detection.ChangeDetector`).  It sees what
+  moves: the moving person and the background they just uncovered.
+- :class:`BackgroundSegmenter`: a static background learnt as the per-pixel
+  median of the first N frames, then eq. (1) between each frame and that
+  background.  It sees a person who stands still, as long as every pixel shows
+  the background in more than half of the learning frames (an empty studio at
+  start, or a person walking through).
+- :class:`~memo_ros.core.vision.background.SequenceSegmenter` ('sequence'): for
+  recordings that never show the scene empty: the background of the first N
+  frames with the person masked out (motion regions, then his own masks), in
+  colour, with a per-pixel noise model, and learnt further from every later
+  frame outside the person and the tracked body.
+
+Both feed the same :func:`cleanup` (Rohr §4.1: "detected image points having a
+small number of neighbors in a 3x3 window are deleted and nondetected points
+with a large number of neighbors are marked", repeated until stable, then the
+remaining holes filled) and :func:`select_regions` (enclosing rectangle and
+outline of each kept region, Rohr Figs. 10-11).  ``keep='tracked'`` keeps the
+regions that overlap a prior (the tracked body's projection, else the previous
+frame's person grown), so people in the background are not taken for him.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from memo_ros.core.vision.background import SequenceSegmenter
+from memo_ros.core.vision.change_detection import (
+    NOISE_FACTOR,
+    ChangeDetector,
+    ChangeResult,
+    Workspace,
+    detect_changes,
+)
+from memo_ros.core.vision.cleanup import cleanup
+
+SEGMENTERS = ('background', 'change', 'sequence')
+KEEP_MODES = ('largest', 'all', 'tracked')
+_EMPTY_OUTLINE = np.zeros((0, 2), np.int32)
+PIXEL_FLOOR = 0.5  # grey levels: a pixel differing by less is unchanged even in noise-free frames (uint8 steps)
+EXACT_FILL_ABOVE = 7  # cleanup k2 for exact frames: fill pinholes only (a 1 px slit's closed end has 7 neighbours)
+
+
+# ------------------------------------------------------------------ regions
+@dataclass
+class Region:
+    """One kept connected region: its pixel count, enclosing rectangle and outer outline."""
+
+    area: int
+    box: tuple[int, int, int, int]  # x, y, w, h in pixels (Rohr's enclosing rectangle)
+    outline: np.ndarray  # (N, 2) int32 pixel coordinates (x, y), cv2.findContours order
+
+
+def select_regions(
+    mask: np.ndarray, min_area: int = 200, keep: str = 'largest', prior: np.ndarray | None = None
+) -> tuple[np.ndarray, list[Region]]:
+    """Keep the largest, every, or (``'tracked'``) every region overlapping ``prior`` among the 8-connected
+    regions of at least ``min_area`` pixels: kept mask, regions.  'tracked' without a prior, or when no
+    region overlaps it, keeps the largest.
+    """
+    if keep not in KEEP_MODES:
+        raise ValueError(f'keep must be one of {", ".join(KEEP_MODES)}, got {keep!r}')
+    m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    kept = np.zeros(m.shape, bool)
+    if not m.any():
+        return kept, []
+    bx, by, bw, bh = cv2.boundingRect(m)  # label only the flags' box
+    roi = m[by : by + bh, bx : bx + bw]
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(roi, connectivity=8, ltype=cv2.CV_32S)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    candidates = np.flatnonzero(areas >= min_area) + 1
+    if candidates.size == 0:
+        return kept, []
+    if keep == 'tracked' and prior is not None:
+        overlap = np.bincount(labels[prior[by : by + bh, bx : bx + bw]], minlength=n)
+        consistent = candidates[overlap[candidates] > 0]
+        candidates = consistent if consistent.size else candidates
+        keep = 'all' if consistent.size else 'largest'
+    if keep != 'all':
+        candidates = candidates[[int(np.argmax(areas[candidates - 1]))]]
+    else:
+        candidates = candidates[np.argsort(-areas[candidates - 1], kind='stable')]
+    regions = []
+    for label in candidates:
+        x, y, w, h = (int(v) for v in stats[label, :4])
+        region = labels[y : y + h, x : x + w] == label
+        kept[by + y : by + y + h, bx + x : bx + x + w] |= region
+        contours, _ = cv2.findContours(
+            region.view(np.uint8),
+            cv2.RETR_EXTERNAL,
+            cv2.CHAIN_APPROX_NONE,
+            offset=(bx + x, by + y),
+        )
+        outline = max(contours, key=len).reshape(-1, 2) if contours else _EMPTY_OUTLINE
+        regions.append(
+            Region(int(stats[label, cv2.CC_STAT_AREA]), (bx + x, by + y, w, h), outline)
+        )
+    return kept, regions
+
+
+def union_box(regions: list[Region]) -> tuple[int, int, int, int] | None:
+    """The rectangle (x, y, w, h) enclosing every region, None without regions."""
+    if not regions:
+        return None
+    boxes = np.array([r.box for r in regions])
+    x0, y0 = boxes[:, 0].min(), boxes[:, 1].min()
+    x1, y1 = (boxes[:, 0] + boxes[:, 2]).max(), (boxes[:, 1] + boxes[:, 3]).max()
+    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+
+
+# -------------------------------------------------------------- segmenters
+class ChangeSegmenter:
+    """Raw person mask from Rohr's change detection against the previous frame (eq. 1, j = k - 1)."""
+
+    def __init__(self, threshold: float = 12.0, noise_factor: float = NOISE_FACTOR) -> None:
+        """``threshold``: T of eq. (1), grey levels, raised to ``noise_factor`` noise sigmas (0: fixed T)."""
+        self.detector = ChangeDetector(threshold, noise_factor)
+
+    @property
+    def warming_up(self) -> bool:
+        """True until a previous frame exists."""
+        return self.detector.previous is None
+
+    def reset(self) -> None:
+        """Forget the previous frame."""
+        self.detector.reset()
+
+    def segment(self, grey: np.ndarray) -> ChangeResult | None:
+        """Eq. (1) against the previous frame (raw mask, difference, noise), None without a previous frame."""
+        return self.detector.detect(grey)
+
+
+class BackgroundSegmenter:
+    """Raw person mask: eq. (1) between the frame and a static background (median of the first N frames)."""
+
+    def __init__(
+        self,
+        threshold: float = 4.0,
+        learn_frames: int = 10,
+        noise_factor: float = NOISE_FACTOR,
+        compensate_gain: bool = True,
+    ) -> None:
+        """T of eq. (1) against the background; N learning frames; noise floor; global gain compensation."""
+        if learn_frames < 1:
+            raise ValueError(f'learn_frames must be at least 1, got {learn_frames}')
+        self.threshold = float(threshold)
+        self.learn_frames = int(learn_frames)
+        self.noise_factor = float(noise_factor)
+        self.compensate_gain = bool(compensate_gain)
+        self.workspace = Workspace()
+        self.gain = 1.0
+        self.reset()
+
+    @property
+    def warming_up(self) -> bool:
+        """True while the background is still being learnt."""
+        return self.background is None
+
+    def reset(self) -> None:
+        """Forget the background and learn it again from the next N frames."""
+        self.background: np.ndarray | None = None
+        self._scaled: np.ndarray | None = None
+        self._learning: np.ndarray | None = None
+        self._count = 0
+
+    def set_background(self, background: np.ndarray) -> None:
+        """Use a given background (e.g. a picture of the empty studio) instead of learning one."""
+        self.background = np.ascontiguousarray(background, np.uint8).copy()
+        self._scaled = None
+        self._learning, self._count = None, 0
+
+    def _reference(self, grey: np.ndarray) -> np.ndarray:
+        """The background, scaled by the frame's global gain (slow lighting changes) when that is on."""
+        if not self.compensate_gain:
+            return self.background
+        sample_bg = self.background[::8, ::8].astype(np.float32)
+        sample = grey[::8, ::8].astype(np.float32)
+        valid = sample_bg > 16.0
+        gain = float(np.median(sample[valid] / sample_bg[valid])) if valid.any() else 1.0
+        self.gain = gain
+        if abs(gain - 1.0) < 0.005:  # below half a grey level at mid grey: no rescaling
+            return self.background
+        if self._scaled is None or self._scaled.shape != grey.shape:
+            self._scaled = np.empty(grey.shape, np.float32)
+        return cv2.multiply(self.background, gain, dst=self._scaled, dtype=cv2.CV_32F)
+
+    def segment(self, grey: np.ndarray) -> ChangeResult | None:
+        """Eq. (1) against the background (raw mask, difference, noise), None while learning."""
+        grey = np.asarray(grey)
+        if self.background is not None and self.background.shape == grey.shape:
+            reference = self._reference(grey)
+            frame = grey if reference.dtype == grey.dtype else grey.astype(np.float32)
+            return detect_changes(
+                frame, reference, self.threshold, self.noise_factor, self.workspace
+            )
+        if self._learning is None or self._learning.shape[1:] != grey.shape:
+            self._learning = np.empty((self.learn_frames,) + grey.shape, np.uint8)
+            self._count = 0
+        self._learning[self._count] = grey
+        self._count += 1
+        if self._count == self.learn_frames:
+            # per-pixel median: a person covering a pixel in fewer than half the frames is voted out
+            self.background = np.median(self._learning, axis=0).round().astype(np.uint8)
+            self._learning = None
+        return None
+
+
+def refine_boundary(
+    raw: np.ndarray,
+    filled: np.ndarray,
+    difference: np.ndarray,
+    pixel_threshold: float,
+    depth: int = 2,
+) -> np.ndarray:
+    """Undo eq. (1)'s 2 px spread: keep the filled core, and near its edge only pixels whose own |d| is large."""
+    # The 5x5 fit flags pixels up to 2 px outside a strong step edge; the core (filled mask eroded by
+    # ``depth``) lies inside, the band around it is decided per pixel: raw flag and |g_k - g_j| > t.
+    size = 2 * depth + 1
+    core = cv2.erode(
+        filled.view(np.uint8),
+        cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)),
+        borderType=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
+    strong = cv2.compare(
+        cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_GT
+    )  # 0 / 255
+    band = cv2.bitwise_and(
+        cv2.bitwise_and(raw.view(np.uint8), filled.view(np.uint8)), strong
+    )  # 0 / 1
+    return cv2.bitwise_or(core, band).view(bool)
+
+
+def carve_background_channels(
+    mask: np.ndarray, difference: np.ndarray, pixel_threshold: float
+) -> np.ndarray:
+    """Remove from ``mask`` the unchanged pixels (|d| <= t) that connect 4-wise to the outside (bool)."""
+    # The 5x5 fit of eq. (1) spreads 2 px from either side of a gap, so a slit up to 4 px wide (an arm
+    # hanging next to the trunk) is flagged in full and is no band pixel of refine_boundary.  Where the
+    # per-pixel test is exact (noise-free frames) the background reaching in through the slit is removed;
+    # unchanged pixels enclosed by the person (a part with the background's grey) stay.
+    unchanged = cv2.compare(
+        cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_LE
+    )  # 0 / 255
+    free = cv2.bitwise_or(unchanged, cv2.compare(mask.view(np.uint8), 0, cv2.CMP_EQ))
+    free = cv2.copyMakeBorder(free, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=255)
+    _, labels = cv2.connectedComponents(free, connectivity=4)
+    outside = labels[1:-1, 1:-1] == labels[0, 0]
+    return mask & ~outside
+
+
+# -------------------------------------------------------------------- facade
+@dataclass
+class Segmentation:
+    """A frame's segmentation: raw and cleaned masks, kept regions and their enclosing rectangle."""
+
+    raw: np.ndarray  # (H, W) bool: what the segmenter flagged
+    mask: np.ndarray  # (H, W) bool: cleaned, only the kept regions
+    regions: list[Region] = field(default_factory=list)
+    box: tuple[int, int, int, int] | None = None  # x, y, w, h enclosing all kept regions
+    warming_up: bool = False  # no segmentation yet (learning the background / no previous frame)
+
+    @classmethod
+    def empty(cls, shape: tuple[int, int], warming_up: bool) -> 'Segmentation':
+        """Nothing found in an image of ``shape``."""
+        nothing = np.zeros(shape, bool)
+        return cls(nothing, nothing, [], None, warming_up)
+
+
+@dataclass
+class SegmenterSettings:
+    """Parameters of :class:`Segmenter` (the contour node's parameters of the same names)."""
+
+    segmenter: str = 'background'  # 'background' or 'change'
+    threshold: float = 4.0  # T of eq. (1), grey levels (before the noise floor)
+    background_frames: int = 10  # N frames learnt by the background segmenter
+    delete_below: int = 3  # cleanup k1
+    fill_above: int = 5  # cleanup k2
+    max_iterations: int = 10  # cleanup repetitions (upper bound)
+    fill_holes: bool = True
+    min_area: int = 200  # smallest kept region, pixels
+    keep: str = 'largest'  # 'largest', 'all' or 'tracked' (overlapping the prior)
+    noise_factor: float = (
+        NOISE_FACTOR  # T is raised to this many sigmas of the measured noise (0: fixed T)
+    )
+    refine: bool = True  # per-pixel boundary refinement (undoes the 5x5 fit's spread)
+    pixel_factor: float = 2.5  # boundary pixels need |g_k - g_j| > max(pixel_factor sigma, 0.5)
+    exact_noise: float = (
+        0.5  # below this noise sigma (grey levels) the per-pixel test is exact: carve
+    )
+    # background channels, do not fill 1 px slits (0: never)
+    compensate_gain: bool = True  # background: follow slow global lighting changes
+    learn_margin: int = 6  # sequence: pixels around the person not learnt from, px
+    track_margin: int = 15  # tracked: the previous frame's person grown by this much is the prior
+
+
+class Segmenter:
+    """Raw mask by the named segmenter, then cleanup, boundary refinement and region selection."""
+
+    def __init__(self, settings: SegmenterSettings | None = None, **overrides) -> None:
+        """Settings as a :class:`SegmenterSettings` and/or keyword overrides of its fields."""
+        settings = replace(settings or SegmenterSettings(), **overrides)
+        if settings.segmenter not in SEGMENTERS:
+            raise ValueError(
+                f'unknown segmenter {settings.segmenter!r}; known: {", ".join(SEGMENTERS)}'
+            )
+        if settings.keep not in KEEP_MODES:
+            raise ValueError(f'keep must be one of {", ".join(KEEP_MODES)}, got {settings.keep!r}')
+        self.settings = settings
+        if settings.segmenter == 'change':
+            self.method = ChangeSegmenter(settings.threshold, settings.noise_factor)
+        elif settings.segmenter == 'sequence':
+            self.method = SequenceSegmenter(
+                settings.threshold, settings.background_frames, learn_margin=settings.learn_margin
+            )
+        else:
+            self.method = BackgroundSegmenter(
+                settings.threshold,
+                settings.background_frames,
+                settings.noise_factor,
+                settings.compensate_gain,
+            )
+        self.last_change: ChangeResult | None = None
+        self.roi: np.ndarray | None = None  # where the tracked body is expected (bool), if known
+        self.previous: np.ndarray | None = None  # the previous frame's kept person mask
+        self._image: np.ndarray | None = None
+
+    @property
+    def colour(self) -> bool:
+        """True when the segmenter compares colour frames (the others take grey)."""
+        return self.settings.segmenter == 'sequence'
+
+    def reset(self) -> None:
+        """Forget the frame history (previous frame or learnt background) and the tracked region."""
+        self.method.reset()
+        self.roi = self.previous = None
+
+    def set_roi(self, roi: np.ndarray | None) -> None:
+        """Where the tracked body is expected in the next frames (bool (H, W)); None: not known."""
+        self.roi = None if roi is None else np.asarray(roi, bool)
+
+    def raw(self, image: np.ndarray) -> ChangeResult | None:
+        """The segmenter's eq. (1) result (raw mask, difference, noise), None while warming up."""
+        self._image = image
+        self.last_change = self.method.segment(image)
+        return self.last_change
+
+    def _prior(self, shape: tuple[int, int]) -> np.ndarray | None:
+        """The tracked region: the body's projection, else the previous frame's person grown."""
+        if self.roi is not None and self.roi.shape == shape:
+            return self.roi
+        if self.previous is None or self.previous.shape != shape or not self.previous.any():
+            return None
+        size = 2 * self.settings.track_margin + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        return cv2.dilate(self.previous.view(np.uint8), kernel).view(bool)
+
+    def refine(self, change: ChangeResult) -> Segmentation:
+        """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) result."""
+        s = self.settings
+        raw = change.mask
+        cleaned = cleanup(raw, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
+        if s.refine and cleaned.any():
+            pixel_threshold = max(s.pixel_factor * change.sigma, PIXEL_FLOOR)
+            exact = change.sigma < s.exact_noise
+            x, y, w, h = _grown_box(cleaned, 3)
+            window = np.s_[y : y + h, x : x + w]
+            sharp = refine_boundary(
+                raw[window], cleaned[window], change.difference[window], pixel_threshold
+            )
+            fill_above = s.fill_above
+            if exact:  # no noise to clean: keep slits between parts, which cleanup would close
+                sharp = carve_background_channels(
+                    sharp, change.difference[window], pixel_threshold
+                )
+                fill_above = max(fill_above, EXACT_FILL_ABOVE)
+            cleaned = np.zeros_like(cleaned)
+            cleaned[window] = cleanup(
+                sharp, s.delete_below, fill_above, s.max_iterations, s.fill_holes
+            )
+        prior = self._prior(cleaned.shape) if s.keep == 'tracked' else None
+        mask, regions = select_regions(cleaned, s.min_area, s.keep, prior)
+        self.previous = mask
+        learn = getattr(self.method, 'learn', None)
+        if learn is not None and self._image is not None:
+            roi = self.roi if self.roi is not None and self.roi.shape == mask.shape else None
+            learn(self._image, mask, roi)
+        return Segmentation(raw.copy(), mask, regions, union_box(regions), False)
+
+    def process(self, image: np.ndarray) -> Segmentation:
+        """Segment one frame: grey uint8 (H, W), or (H, W, C) for the sequence segmenter."""
+        change = self.raw(image)
+        if change is None:
+            return Segmentation.empty(np.shape(image)[:2], True)
+        return self.refine(change)
+
+
+def _grown_box(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Bounding box (x, y, w, h) of a mask's flags grown by ``margin`` and clipped to the image."""
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    height, width = mask.shape
+    x0, y0 = max(x - margin, 0), max(y - margin, 0)
+    return x0, y0, min(x + w + margin, width) - x0, min(y + h + margin, height) - y0

@@ -1,0 +1,154 @@
+"""Rohr §4.3: similarity of model contours and grey-value edge lines (eq. 7-11).
+
+For each visible model contour i (image segment of length l_Mi) a search
+window is the rectangle along it of half-width r_i = c_r l_Mi.  Every edge
+line is cut to the window (Liang-Barsky clipping); of the cut piece, l_i is its
+projection onto the model line (<= l_Mi), d_i the distance of its midpoint
+from the model line and dphi_i the angle between the lines, and
+
+    s_i = l_i exp(-1/2 k_i^T Sigma_i^-1 k_i),  k_i = (l_Mi - l_i, d_i, dphi_i)   (eq. 7, 8)
+
+with sigma_li = c_l l_Mi, sigma_di = c_d c_r l_Mi and a constant sigma_dphi.
+The best edge per window counts; the overall similarity is
+
+    s(p) = sum_i w_Gi w_Ki s_i / sum_i l_Mi                                     (eq. 11)
+
+(w_V, the velocity weight, is not used: no velocity field here).  Everything is
+evaluated at once for N shifted copies of the same contours (a grid search).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SimilarityParams:
+    """The constants of eq. 7-11."""
+
+    c_l: float = 0.4  # sigma_l = c_l l_M
+    c_d: float = 0.5  # sigma_d = c_d r, r = c_r l_M
+    c_r: float = 0.2  # window half-width r = c_r l_M
+    sigma_phi: float = 0.25  # rad
+    min_window: float = 2.0  # smallest window half-width r, pixels (short contours)
+    gradient_weight: bool = (
+        False  # w_G: weight by the edge's gradient magnitude (normalised to its mean)
+    )
+
+
+def candidate_edges(
+    a: np.ndarray, b: np.ndarray, edges: np.ndarray, margin: float, params: SimilarityParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """(contour, edge) pairs worth scoring for contours a, b (S, 2) moved by up to ``margin`` px:
+    the edge reaches the grown window and its angle is within 3 sigma_phi.  Sorted by contour.
+    """
+    S, E = len(a), len(edges)
+    if S == 0 or E == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(length, 1e-9)[:, None]
+    r = np.maximum(params.c_r * length, params.min_window) + margin
+    rel1 = edges[None, :, 0:2] - a[:, None]  # (S, E, 2)
+    rel2 = edges[None, :, 2:4] - a[:, None]
+    t1 = rel1[..., 0] * u[:, None, 0] + rel1[..., 1] * u[:, None, 1]
+    t2 = rel2[..., 0] * u[:, None, 0] + rel2[..., 1] * u[:, None, 1]
+    n1 = rel1[..., 1] * u[:, None, 0] - rel1[..., 0] * u[:, None, 1]
+    n2 = rel2[..., 1] * u[:, None, 0] - rel2[..., 0] * u[:, None, 1]
+    L, R = length[:, None] + margin, r[:, None]
+    along = (np.maximum(t1, t2) >= -margin) & (np.minimum(t1, t2) <= L)
+    across = (np.maximum(n1, n2) >= -R) & (np.minimum(n1, n2) <= R)
+    angle = np.arctan2(np.abs(n2 - n1), np.abs(t2 - t1))
+    contour, edge = np.nonzero(along & across & (angle <= 3.0 * params.sigma_phi))
+    return contour, edge
+
+
+def contour_scores(
+    a: np.ndarray,
+    b: np.ndarray,
+    edges: np.ndarray,
+    contour: np.ndarray,
+    edge: np.ndarray,
+    params: SimilarityParams,
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """s_i of the best edge per window (eq. 7, 8) for contours a, b (N, S, 2) and candidate pairs: (N, S)."""
+    N, S = a.shape[:2]
+    best = np.zeros((N, S))
+    if S == 0 or len(contour) == 0:
+        return best
+    a, b = a.astype(np.float32), b.astype(np.float32)  # float32: half the memory traffic
+    d = b - a
+    length = np.linalg.norm(d, axis=-1)  # l_M (N, S)
+    u = d / np.maximum(length, 1e-9)[..., None]
+    r = np.maximum(params.c_r * length, params.min_window)  # window half-width
+    ux, uy = u[:, contour, 0], u[:, contour, 1]  # (N, P)
+    ax, ay = a[:, contour, 0], a[:, contour, 1]
+    e = edges[edge].astype(np.float32)
+    x1, y1, x2, y2 = (e[None, :, k] for k in range(4))
+    t1 = (x1 - ax) * ux + (y1 - ay) * uy
+    t2 = (x2 - ax) * ux + (y2 - ay) * uy
+    n1 = (y1 - ay) * ux - (x1 - ax) * uy
+    n2 = (y2 - ay) * ux - (x2 - ax) * uy
+    dt, dn = t2 - t1, n2 - n1
+    L, R = length[:, contour], r[:, contour]
+    # cut the edge to the window 0 <= t <= l_M, |n| <= r: p * lambda <= q for each side (Liang-Barsky)
+    lam_lo, lam_hi = np.zeros_like(t1), np.ones_like(t1)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        for p, q in ((-dt, t1), (dt, L - t1), (-dn, R + n1), (dn, R - n1)):
+            ratio = q / p  # +-inf or nan where p == 0
+            np.maximum(lam_lo, np.where(p < 0, ratio, 0.0), out=lam_lo)
+            np.minimum(lam_hi, np.where(p > 0, ratio, np.where(q < 0, -1.0, 1.0)), out=lam_hi)
+    cut = lam_hi > lam_lo
+    overlap = np.abs(dt) * (lam_hi - lam_lo)  # l_i: projection onto the model line
+    middle = np.abs(n1 + dn * (lam_lo + lam_hi) / 2.0)  # d_i
+    angle = np.arctan2(np.abs(dn), np.abs(dt))  # dphi_i in [0, pi/2]
+    exponent = (
+        ((L - overlap) / (params.c_l * L)) ** 2
+        + (middle / (params.c_d * R)) ** 2
+        + (angle / params.sigma_phi) ** 2
+    )
+    s = np.where(cut, overlap * np.exp(-0.5 * exponent), 0.0)  # eq. 7
+    if weights is not None:  # w_G per edge
+        s = s * weights[edge][None]
+    starts = np.flatnonzero(np.r_[True, contour[1:] != contour[:-1]])
+    best[:, contour[starts]] = np.maximum.reduceat(s, starts, axis=1)  # best edge per window
+    return best
+
+
+def similarity(
+    a: np.ndarray,
+    b: np.ndarray,
+    edges: np.ndarray,
+    contour: np.ndarray,
+    edge: np.ndarray,
+    params: SimilarityParams,
+    part_weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """s(p) of eq. 11 for N shifted copies of the contours (a, b: (N, S, 2)): (N,)."""
+    if a.shape[1] == 0:
+        return np.zeros(a.shape[0])
+    weights = gradient_weights(edges) if params.gradient_weight else None
+    best = contour_scores(a, b, edges, contour, edge, params, weights)
+    total = np.linalg.norm(b - a, axis=-1).sum(axis=1)
+    w_k = 1.0 if part_weights is None else part_weights[None]
+    return (w_k * best).sum(axis=1) / np.maximum(total, 1e-9)
+
+
+def gradient_weights(edges: np.ndarray) -> np.ndarray:
+    """w_G: each edge line's gradient magnitude over the mean of the frame's edges (E,)."""
+    magnitude = edges[:, 4] if edges.shape[1] > 4 else np.ones(len(edges))
+    mean = magnitude.mean() if len(magnitude) else 1.0
+    return magnitude / max(mean, 1e-9)
+
+
+def edge_table(edges) -> np.ndarray:
+    """An EDGE_DTYPE record array (or an (E, >=4) array) as a float (E, 5) array x1, y1, x2, y2, magnitude."""
+    if getattr(edges, 'dtype', None) is not None and edges.dtype.names:
+        return np.stack(
+            [edges['x1'], edges['y1'], edges['x2'], edges['y2'], edges['magnitude']], 1
+        ).astype(float)
+    arr = np.asarray(edges, float).reshape(len(edges), -1)
+    return arr if arr.shape[1] >= 5 else np.hstack([arr[:, :4], np.ones((len(arr), 1))])

@@ -1,0 +1,1 @@
+"""`memo-ros benchmark`: one module per suite and a shared report helper."""

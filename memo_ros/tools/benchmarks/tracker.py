@@ -1,0 +1,106 @@
+"""Per-frame cost of the articulated tracker's update: 14 parts, 3 cameras, 200 / 1,000 / 5,000 contour points each.
+
+The contours are perfect silhouettes of the simulated studio-arm sequence,
+resampled so every camera has the wanted number of samples; each frame is one
+:meth:`ArticulatedTracker.step` (prediction, the candidates' outline tests, force
+assignment and the iterated EKF update), timed in this process.  The nodes run
+numpy's BLAS on one thread (memo_ros/nodes/__init__.py); this command keeps the
+environment's setting, so ``OPENBLAS_NUM_THREADS=1`` measures what the tracker
+node does on one core, and the report says which it was.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.render import render
+from memo_ros.core.multiview.tracking import ArticulatedTracker, TrackerSettings
+from memo_ros.core.simulation.scenarios import make_scenario
+from memo_ros.core.vision.contours import (
+    occluding_contours,
+    perimeter,
+    silhouette_outlines,
+)
+
+POINTS_PER_CAMERA = (200, 1000, 5000)
+FRAMES = 30
+TARGET_MS = 10.0  # at 1,000 points per camera
+
+
+def _outlines(scenario, body, q) -> dict[str, list[np.ndarray]]:
+    rotations, origins = body.forward_kinematics(q)
+    out = {}
+    for cam in scenario.cameras:
+        out[cam.name] = silhouette_outlines(
+            render(cam, rotations, origins, body.semi_axes, body.lengths).label > 0
+        )
+    return out
+
+
+def _resampled(outlines: list[np.ndarray], count: int) -> np.ndarray:
+    """Contour samples of the outlines with about ``count`` samples in all."""
+    length = sum(perimeter(o) for o in outlines)
+    return occluding_contours(outlines, step=max(length / count, 0.05), smoothing=2.0)
+
+
+def run_tracker_benchmark(repeat: int = 1, settings: TrackerSettings | None = None) -> dict:
+    """Milliseconds per frame of the tracker's step at each contour density, median and p90."""
+    body = load_default_body()
+    scenario = make_scenario('studio-arm', body, frames=FRAMES)
+    times = np.arange(FRAMES) / scenario.frame_rate
+    q, _ = scenario.coordinates(times)
+    outlines = [_outlines(scenario, body, q[k]) for k in range(FRAMES)]
+    cases = []
+    for count in POINTS_PER_CAMERA:
+        frames = [{cam: _resampled(o, count) for cam, o in frame.items()} for frame in outlines]
+        ms, iterations = [], []
+        for _ in range(repeat):
+            tracker = ArticulatedTracker(
+                body, scenario.cameras, settings or TrackerSettings(), initial_pose=q[0]
+            )
+            tracker.step(0, frames[0])  # initialisation frame, not timed
+            for k in range(1, FRAMES):
+                t0 = time.perf_counter()
+                result = tracker.step(int(times[k] * 1e9), frames[k])
+                ms.append(1000.0 * (time.perf_counter() - t0))
+                iterations.append(result.report.iterations)
+        ms = np.asarray(ms)
+        cases.append(
+            {
+                'points_per_camera': count,
+                'points_actual': int(
+                    np.mean([sum(len(t) for t in f.values()) for f in frames]) / 3
+                ),
+                'frames': len(ms),
+                'median_ms': float(np.median(ms)),
+                'p90_ms': float(np.percentile(ms, 90)),
+                'iterations_mean': float(np.mean(iterations)),
+            }
+        )
+    return {
+        'cameras': len(scenario.cameras),
+        'parts': len(body.lengths),
+        'cases': cases,
+        'target_ms': TARGET_MS,
+        'blas_threads': os.environ.get('OPENBLAS_NUM_THREADS', 'default'),
+    }
+
+
+def print_tracker_benchmark(report: dict) -> None:
+    """One row per contour density."""
+    print(
+        f'tracker update per frame, {report["parts"]} parts x {report["cameras"]} cameras, '
+        f'BLAS threads {report["blas_threads"]}; target {report["target_ms"]:.0f} ms at 1,000 points per camera'
+    )
+    print(
+        f'{"points/camera":>13} {"frames":>6} {"median ms":>10} {"p90 ms":>8} {"iterations":>10}'
+    )
+    for c in report['cases']:
+        print(
+            f'{c["points_actual"]:>13} {c["frames"]:>6} {c["median_ms"]:>10.2f} {c["p90_ms"]:>8.2f} '
+            f'{c["iterations_mean"]:>10.1f}'
+        )
