@@ -11,7 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
-DATA=${POSE2SIM_DEMO:-/work/shared/data/pose2sim_demo_single}
+DATA=${POSE2SIM_DEMO:-../shared/data/pose2sim_demo_single}
 OUT=${OUT:-out/pose2sim}
 SCALE=${SCALE:-0.25}
 BAG="$OUT/demo"

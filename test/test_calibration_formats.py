@@ -21,7 +21,7 @@ from memo_ros.core.formats.calibration import (
 )
 from memo_ros.core.geometry.camera import Camera
 
-DEMO = Path('/work/shared/data/pose2sim_demo_single')
+DEMO = Path(__file__).resolve().parent.parent.parent / 'shared' / 'data' / 'pose2sim_demo_single'
 QCA = DEMO / 'Calib.qca.txt'
 POINTS = np.random.default_rng(1).uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 2.0], (300, 3))
 PLUMB_BOB = [-0.21, 0.063, 0.0012, -0.0021, 0.011]

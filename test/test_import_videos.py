@@ -33,7 +33,7 @@ from memo_ros.tools.simulate import START_NS, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
-DEMO = Path('/work/shared/data/pose2sim_demo_single')
+DEMO = Path(__file__).resolve().parent.parent.parent / 'shared' / 'data' / 'pose2sim_demo_single'
 FRAMES, WIDTH, HEIGHT = 3, 160, 120
 DISTORTION = [-0.18, 0.05, 0.0011, -0.0017, 0.01]
 POINTS = np.random.default_rng(2).uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 2.0], (200, 3))

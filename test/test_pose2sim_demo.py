@@ -24,8 +24,10 @@ from memo_ros.core.vision.contours import ContourPipeline
 from memo_ros.core.vision.tracked_region import body_region
 from memo_ros.ros.images import image_message_to_frame
 
-DATA = Path(os.environ.get('POSE2SIM_DEMO', '/work/shared/data/pose2sim_demo_single'))
 ROOT = Path(__file__).resolve().parent.parent
+DATA = Path(
+    os.environ.get('POSE2SIM_DEMO', ROOT.parent / 'shared' / 'data' / 'pose2sim_demo_single')
+)
 CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
 BACKGROUND_FRAMES = 50  # of the 100, spread over the recording (as background_frames does)
 TRACKED_FRAMES = 24
