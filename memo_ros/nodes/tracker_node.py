@@ -200,6 +200,28 @@ PARAMS: tuple[Param, ...] = (
         read_only=True,
     ),
     Param(
+        'hard_limits',
+        True,
+        'project every estimate into the anatomical joint ranges (knees flex backwards, elbows '
+        'forwards); false leaves only the soft limit_sigma pull',
+    ),
+    Param(
+        'twin_evidence',
+        1.0,
+        "evidence (contour misfit difference, sigma^2 per sample) that decides between the pose "
+        "and its twin (turned 180 degrees, sides swapped); 0 never follows the twin",
+        0.0,
+        100.0,
+    ),
+    Param(
+        'twin_recheck',
+        30,
+        'frames between two looks at the twin once decided (0: only at (re)initialisation and '
+        'inconsistent frames)',
+        0,
+        100000,
+    ),
+    Param(
         'max_lag',
         1.0,
         'frames are tracked in order, but one older than the newest complete frame by more than '
@@ -240,6 +262,9 @@ def tracker_settings(p: dict) -> TrackerSettings:
         nis_limit=p['nis_limit'],
         min_matched_fraction=p['min_matched_fraction'],
         lost_after=p['lost_after'],
+        hard_limits=p['hard_limits'],
+        twin_evidence=p['twin_evidence'],
+        twin_recheck=p['twin_recheck'],
         process_noise=ProcessNoise(
             p['process_noise_translation'],
             p['process_noise_root_rotation'],
@@ -612,6 +637,9 @@ class TrackerNode(Node):
         self.health.set('samples_unselected', result.unselected)
         self.health.set('nis', f'{result.report.nis:.3f}')
         self.health.set('last_frame_ms', f'{1000 * result.seconds:.1f}')
+        self.health.set('heading_confidence', f'{result.heading_confidence:.3f}')
+        self.health.set('heading_undecided', str(result.undecided).lower())
+        self.health.set('twin_swaps', result.twin_swaps)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:
@@ -625,6 +653,10 @@ class TrackerNode(Node):
             return result.status
         self._publish(stamp, result)
         self.health.count('published')
+        if result.undecided:
+            self.health.count('published_undecided')
+            self.health.ok()
+            return f'{TRACKING} heading_confidence={result.heading_confidence:.3f}'
         self.health.ok()
         return TRACKING
 
@@ -649,7 +681,10 @@ class TrackerNode(Node):
             self.health.drop('measuring_body', f'body not measured: {exc}; trying again')
             return False
         self.body = body
-        self.tracker = ArticulatedTracker(body, self.studio.cameras, tracker_settings(self.params))
+        # the studio's initial pose (use_initial_pose) holds for the measured body too
+        self.tracker = ArticulatedTracker(
+            body, self.studio.cameras, tracker_settings(self.params), self.tracker.initial_pose
+        )
         self.body_silhouettes = None
         self.health.set('body_height_m', f'{height:.3f}')
         self.get_logger().info(

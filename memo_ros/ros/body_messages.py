@@ -42,6 +42,11 @@ def world_header(stamp_ns: int) -> Header:
     return Header(stamp=stamp_from_ns(stamp_ns), frame_id=WORLD)
 
 
+def processed_outcome(frame_id: str) -> str:
+    """Return the outcome word of a /memo/processed frame_id ('tracking heading_confidence=0.62')."""
+    return frame_id.split(' ', 1)[0]
+
+
 def processed_message(stamp_ns: int, outcome: str) -> Header:
     """The frame ``stamp_ns`` is done (``outcome`` in frame_id: tracking, lost, waiting, dropped...): replay's back-pressure."""
     return Header(stamp=stamp_from_ns(stamp_ns), frame_id=outcome)

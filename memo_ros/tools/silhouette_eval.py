@@ -28,6 +28,7 @@ from memo_ros.core.vision.tracked_region import body_region
 from memo_ros.ros.body_messages import (
     MARKERS_TOPIC,
     PROCESSED_TOPIC,
+    processed_outcome,
     tracked_body_from_markers,
 )
 from memo_ros.ros.images import image_message_to_frame, image_message_to_grey
@@ -82,7 +83,7 @@ def frame_outcomes(estimate: Path) -> dict[int, str]:
     if PROCESSED_TOPIC not in bag_topics(estimate):
         return {}
     return {
-        stamp_to_ns(m.message.stamp): m.message.frame_id
+        stamp_to_ns(m.message.stamp): processed_outcome(m.message.frame_id)
         for m in read_messages(estimate, [PROCESSED_TOPIC])
     }
 

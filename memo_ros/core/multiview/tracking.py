@@ -21,6 +21,7 @@ import numpy as np
 from memo_ros.core.geometry.body import PART_NAMES, Body
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
+from memo_ros.core.multiview.anatomy import Anatomy
 from memo_ros.core.multiview.correspondence import (
     Candidates,
     Matches,
@@ -47,21 +48,6 @@ WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 REFERENCE_SPACING_PX = (
     2.0  # the sample spacing the noise parameters refer to (contour_node's contour_step)
 )
-
-# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend)
-JOINT_LIMITS: dict[str, tuple[float, float]] = {
-    'elbow_l_y': (0.0, 2.6),
-    'elbow_r_y': (0.0, 2.6),
-    'wrist_l_y': (-1.3, 1.3),
-    'wrist_r_y': (-1.3, 1.3),
-    'wrist_l_x': (-0.6, 0.6),
-    'wrist_r_x': (-0.6, 0.6),
-    'knee_l_y': (-2.6, 0.0),
-    'knee_r_y': (-2.6, 0.0),
-    'ankle_l_y': (-0.9, 0.9),
-    'ankle_r_y': (-0.9, 0.9),
-}
-
 
 @dataclass
 class TrackerSettings:
@@ -99,6 +85,11 @@ class TrackerSettings:
     init_sigma_rotation: float = 0.1
     init_iterations: int = 15
     init_headings: int = 8
+    hard_limits: bool = True  # every estimate projected into the anatomical ranges (JOINT_LIMITS)
+    twin_evidence: float = 1.0  # evidence (sigma^2 per sample) that decides leader vs twin; 0: no twin
+    twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
+    twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
+    twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
@@ -120,6 +111,9 @@ class FrameResult:
     initialised: bool = False  # this frame (re)started the track
     seconds: float = 0.0
     reason: str = ''
+    heading_confidence: float = 1.0  # how sure the tracker is that the pose is not its twin, 0.5-1
+    undecided: bool = False  # the twin is followed beside the pose: the evidence has not separated them
+    twin_swaps: int = 0  # times the twin won and took the pose's place, since the start
 
 
 class ArticulatedTracker:
@@ -140,9 +134,11 @@ class ArticulatedTracker:
         self.ekf = ArticulatedEKF(self.model)
         self.nodes = model_nodes(body, ring_spacing=self.settings.ring_spacing)
         self.affects = chain_membership(body)
-        self.limit_index = np.array([body.coordinate_index(n) for n in JOINT_LIMITS], int)
-        self.limit_low = np.array([lo for lo, _ in JOINT_LIMITS.values()])
-        self.limit_high = np.array([hi for _, hi in JOINT_LIMITS.values()])
+        self.anatomy = Anatomy(body)
+        self.limit_index = self.anatomy.limit_index
+        self.limit_low = self.anatomy.limit_low
+        self.limit_high = self.anatomy.limit_high
+        self.twin_swaps = 0
         self.reset()
 
     # ------------------------------------------------------------ state
@@ -154,6 +150,10 @@ class ArticulatedTracker:
         self.stamp_ns: int | None = None
         self.bad_frames = 0
         self.pending_pose: np.ndarray | None = self.initial_pose if use_initial_pose else None
+        self.twin_ekf: ArticulatedEKF | None = None  # the leader's twin, while it is followed
+        self.evidence = 0.0  # > 0: the leader fits better than its twin (sigma^2 per sample)
+        self.twin_age = 0
+        self.since_twin = 0  # frames since the twin was last followed
 
     def apply_settings(self, settings: TrackerSettings) -> None:
         """New noises, gates and limits from the next frame on; the current estimate is kept."""
@@ -196,16 +196,27 @@ class ArticulatedTracker:
             )
             for c in contours
         }
-        initialised = False
+        initialised = from_pose = False
+        dt = 0.0
         if self.status != TRACKING:
+            from_pose = self.pending_pose is not None
+            if from_pose:  # the heading a user or the studio gave counts as decided evidence
+                self.evidence = self.settings.twin_evidence
             self._initialise(stamp_ns, contours, rays)
             initialised = True
         else:
-            self.ekf.predict((stamp_ns - self.stamp_ns) * 1e-9)
+            dt = (stamp_ns - self.stamp_ns) * 1e-9
+            self.ekf.predict(dt)
         measure = self._measurement_function(contours, rays, masks)
         report = self.ekf.update(measure, self.settings.iterations, self.settings.gate_sigma)
         self.stamp_ns = stamp_ns
         matched, unselected = self._last_counts
+        if self.settings.hard_limits:
+            self._clamp(self.ekf)
+        if self.settings.twin_evidence > 0:
+            self._follow_twin(
+                contours, rays, masks, samples, dt, start_twin=initialised and not from_pose
+            )
         consistent = (
             matched >= self.settings.min_matched_fraction * samples
             and not report.nis > self.settings.nis_limit
@@ -241,6 +252,9 @@ class ArticulatedTracker:
             initialised,
             time.perf_counter() - start,
             '' if consistent else 'inconsistent frame',
+            self.heading_confidence,
+            self.twin_ekf is not None,
+            self.twin_swaps,
         )
 
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
@@ -276,6 +290,113 @@ class ArticulatedTracker:
             seconds=time.perf_counter() - start,
             reason='no contours: predicted only',
         )
+
+    # ------------------------------------------------------------ the twin hypothesis
+    @property
+    def heading_confidence(self) -> float:
+        """Return how sure the track is not its 180-degree, side-swapped twin (logistic of the evidence)."""
+        if self.settings.twin_evidence <= 0:
+            return 1.0
+        k = np.log(99.0) / self.settings.twin_evidence  # 0.99 at the deciding evidence
+        return float(1.0 / (1.0 + np.exp(-np.clip(k * self.evidence, -50.0, 50.0))))
+
+    def _clamp(self, ekf: ArticulatedEKF) -> None:
+        """Project a filter's pose into the anatomical ranges (the rates and covariance stay as they are:
+        zeroing a rate at a bound without its correlations made a straight knee run away).
+        """
+        ekf.q = self.anatomy.clamp(ekf.q)
+
+    def _follow_twin(self, contours, rays, masks, samples: int, dt: float, start_twin: bool) -> None:
+        """Track the leader's twin beside it and weigh the two by their fit to this frame's contours.
+
+        The twin starts at every initialisation from the silhouettes, every
+        ``twin_recheck`` frames and at an inconsistent frame.  The evidence is
+        the difference of the two poses' robust contour costs per sample, with
+        memory; past ``twin_evidence`` the better pose is kept (the twin taking
+        the leader's place if it is the better), or after ``twin_max_frames``.
+        """
+        s = self.settings
+        self.since_twin += 1
+        if self.twin_ekf is None:
+            due = s.twin_recheck > 0 and self.since_twin >= s.twin_recheck
+            if not (start_twin or due or self.bad_frames):
+                return
+            self.twin_ekf = self._twin_filter(self.ekf)
+            self.twin_age = 0
+            if start_twin:
+                self.evidence = 0.0
+            else:  # a look again: what was learnt counts, but no more than the deciding margin
+                self.evidence = float(np.clip(self.evidence, -s.twin_evidence, s.twin_evidence))
+        twin = self.twin_ekf
+        counts = self._last_counts
+        if self.twin_age or not start_twin:
+            if self.twin_age:
+                twin.predict(dt)
+            twin.update(
+                self._measurement_function(contours, rays, masks), s.iterations, s.gate_sigma
+            )
+        else:  # the twin of a fresh silhouette fit is refitted like the fit itself
+            every = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+            self._refit(twin, twin.q, contours, rays, every)
+            twin.P = self.ekf.P.copy()
+        if s.hard_limits:
+            self._clamp(twin)
+        lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+        twin_cost = self._fit_cost(twin.q, contours, rays, masks, samples)
+        self._last_counts = counts
+        self.evidence = s.twin_memory * self.evidence + (twin_cost - lead_cost) / max(samples, 1)
+        self.twin_age += 1
+        if self.evidence < -s.twin_evidence or (
+            self.twin_age >= s.twin_max_frames and self.evidence < 0
+        ):
+            self.ekf, self.twin_ekf = twin, self.ekf
+            self.evidence = -self.evidence
+            self.twin_swaps += 1
+        if self.evidence > s.twin_evidence or self.twin_age >= s.twin_max_frames:
+            self.twin_ekf = None
+            self.since_twin = 0
+
+    def _twin_filter(self, ekf: ArticulatedEKF) -> ArticulatedEKF:
+        """A filter at the twin of ``ekf``'s state, its covariance carried over by the same map."""
+        twin = ArticulatedEKF(self.model)
+        M = self.anatomy.tangent_map()
+        twin.q = self.anatomy.twin(ekf.q)
+        twin.v = M @ ekf.v
+        T = np.zeros((2 * M.shape[0],) * 2)
+        T[: M.shape[0], : M.shape[0]] = M
+        T[M.shape[0] :, M.shape[0] :] = M
+        twin.P = T @ ekf.P @ T.T
+        return twin
+
+    def _refit(self, ekf: ArticulatedEKF, q: np.ndarray, contours, rays, masks) -> UpdateReport:
+        """Fit a start pose to one frame from a broad prior: ``init_iterations`` relinearisations in
+        rounds of five, each round ending in the anatomical ranges (hard limits) and starting anew.
+        """
+        s = self.settings
+        sigma_q = np.where(np.arange(len(q)) < 3, 0.3, 0.5)
+        sigma_v = np.where(np.arange(len(q)) < 3, 0.3, 0.5)
+        report = UpdateReport()
+        left = max(s.init_iterations, 1)
+        while left > 0:
+            ekf.initialize(q, None, sigma_q, sigma_v)
+            report = ekf.update(
+                self._measurement_function(contours, rays, masks), min(left, 5), gate=1e6
+            )
+            left -= 5
+            if s.hard_limits:
+                self._clamp(ekf)
+            q = ekf.q
+        return report
+
+    def _fit_cost(self, q: np.ndarray, contours, rays, masks, samples: int) -> float:
+        """Robust misfit of pose ``q`` to the contours: sum of min(z^2, gate^2) over the samples, where z
+        is a matched sample's normalised force and an unmatched sample counts the full gate^2.
+        """
+        m = self._measurement_function(contours, rays, masks)(q)
+        matched = self._last_counts[0]
+        gate2 = self.settings.gate_sigma**2
+        z2 = (m.r / m.sigma) ** 2 if len(m) else np.zeros(0)
+        return float(np.minimum(z2, gate2).sum() + max(samples - matched, 0) * gate2)
 
     # ------------------------------------------------------------ measurement model
     def _candidates(
@@ -450,11 +571,8 @@ class ArticulatedTracker:
             q[3:6] = matrix_to_rotvec(rot_z(heading))
             if centre is not None:
                 q[0:2] = centre[0:2]
-            self.ekf.initialize(q, None, np.where(np.arange(len(q)) < 3, 0.3, 0.5), sigma_v)
             masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
-            report = self.ekf.update(
-                self._measurement_function(contours, rays, masks), s.init_iterations, gate=1e6
-            )
+            report = self._refit(self.ekf, q, contours, rays, masks)
             score = (self._last_counts[0], -report.nis if np.isfinite(report.nis) else -np.inf)
             if best is None or score > best[0]:
                 best = (score, self.ekf.q.copy())

@@ -9,6 +9,7 @@ import time
 
 ASSIGNMENT_TOPIC = '/memo/camera_assignment'
 
+from memo_ros.ros.body_messages import processed_outcome
 
 JOINT_STATES_TOPIC = '/memo/joint_states'
 
@@ -148,7 +149,7 @@ class Probe:
     def _on_processed(self, msg, info: dict) -> None:
         trace = self._trace(msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec)
         if trace is not None and trace.processed is None:
-            trace.processed, trace.outcome = published_ns(info), msg.frame_id
+            trace.processed, trace.outcome = published_ns(info), processed_outcome(msg.frame_id)
             if self.on_processed is not None:
                 self.on_processed(trace)
 

@@ -1,0 +1,116 @@
+"""What the body's shape cannot tell but its anatomy can: joint ranges, facing, and the mirror twin.
+
+The 14 elliptic cylinders are front/back symmetric except the feet, so a body
+turned by 180 degrees about the vertical, with its left and right limbs
+exchanged and its hinges bent the other way, casts the same silhouettes: the
+*twin* of a pose.  Only anatomy separates the two: knees flex backwards and
+elbows forwards (hard ranges, in Rohr's spirit of a model that only allows
+human postures), and the feet point forwards.  :func:`twin_pose` builds the
+twin so that the tracker can keep it as a competing hypothesis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from memo_ros.core.geometry.body import JOINT_TREE, ROOT_COORDINATES, Body
+from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z, rotvec_to_matrix
+
+# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend)
+JOINT_LIMITS: dict[str, tuple[float, float]] = {
+    'elbow_l_y': (0.0, 2.6),
+    'elbow_r_y': (0.0, 2.6),
+    'wrist_l_y': (-1.3, 1.3),
+    'wrist_r_y': (-1.3, 1.3),
+    'wrist_l_x': (-0.6, 0.6),
+    'wrist_r_x': (-0.6, 0.6),
+    'knee_l_y': (-2.6, 0.0),
+    'knee_r_y': (-2.6, 0.0),
+    'ankle_l_y': (-0.9, 0.9),
+    'ankle_r_y': (-0.9, 0.9),
+}
+# the turn by pi about the body's own vertical: rotations about x and y change sign, about z not
+TWIN_SIGN = {'x': -1.0, 'y': -1.0, 'z': 1.0}
+
+
+class Anatomy:
+    """Index tables of one body's coordinates: ranges, hinge angles to wrap, the twin's permutation."""
+
+    def __init__(self, body: Body) -> None:
+        names = body.coordinate_names
+        self.n = len(names)
+        self.limit_index = np.array([names.index(n) for n in JOINT_LIMITS], int)
+        self.limit_low = np.array([lo for lo, _ in JOINT_LIMITS.values()])
+        self.limit_high = np.array([hi for _, hi in JOINT_LIMITS.values()])
+        hinges = [
+            names.index(f'{joint}_{axis}')
+            for joint, (_parent, _child, axes) in JOINT_TREE.items()
+            if axes != 'ball'
+            for axis in axes
+        ]
+        self.wrap_index = np.array(sorted(set(hinges) - set(self.limit_index)), int)
+        self.twin_source = np.arange(self.n)
+        self.twin_sign = np.ones(self.n)
+        for k, name in enumerate(names):
+            if name in ROOT_COORDINATES:
+                continue
+            joint, axis = name.rsplit('_', 1)
+            other = _other_side(joint)
+            self.twin_source[k] = names.index(f'{other}_{axis}')
+            self.twin_sign[k] = TWIN_SIGN[axis]
+
+    def clamp(self, q: np.ndarray) -> np.ndarray:
+        """Project ``q`` into the anatomical ranges and wrap the other hinge angles into (-pi, pi]."""
+        out = np.array(q, float)
+        out[..., self.limit_index] = np.clip(
+            out[..., self.limit_index], self.limit_low, self.limit_high
+        )
+        wrapped = out[..., self.wrap_index]
+        out[..., self.wrap_index] = np.pi - np.mod(np.pi - wrapped, 2 * np.pi)
+        return out
+
+    def outside(self, q: np.ndarray) -> np.ndarray:
+        """How far each limited coordinate lies outside its range, rad (0 inside)."""
+        v = np.asarray(q, float)[..., self.limit_index]
+        return np.maximum(self.limit_low - v, 0.0) + np.maximum(v - self.limit_high, 0.0)
+
+    def twin(self, q: np.ndarray) -> np.ndarray:
+        """The pose turned by pi about the pelvis' vertical with left and right exchanged.
+
+        Every part except the feet covers the same volume as in ``q``: the root
+        keeps its position and turns about its own z axis, and each joint takes
+        the other side's angles with the signs of a turn about z (x and y
+        flip, z stays), which reverses the hinges' bending.
+        """
+        q = np.asarray(q, float)
+        out = q[..., self.twin_source] * self.twin_sign
+        out[..., 0:3] = q[..., 0:3]
+        out[..., 3:6] = matrix_to_rotvec(rotvec_to_matrix(q[..., 3:6]) @ rot_z(np.pi))
+        return out
+
+    def tangent_map(self) -> np.ndarray:
+        """The twin's map of tangent vectors (rates, covariances): M with v_twin = M v, (n, n).
+
+        Joints as :meth:`twin`; the root's body-frame rates turn with it
+        (about x and y they change sign), its translation rates stay.
+        """
+        M = np.zeros((self.n, self.n))
+        M[np.arange(self.n), self.twin_source] = self.twin_sign
+        M[3:6, 3:6] = np.diag([-1.0, -1.0, 1.0])
+        return M
+
+
+def _other_side(joint: str) -> str:
+    """Return the joint on the body's other side (itself for the neck)."""
+    if joint.endswith('_l'):
+        return joint[:-2] + '_r'
+    if joint.endswith('_r'):
+        return joint[:-2] + '_l'
+    return joint
+
+
+def facing(body: Body, q: np.ndarray) -> np.ndarray:
+    """Heading of the torso's forward (+x) axis about the world z axis, rad (..., )."""
+    rotations, _ = body.forward_kinematics(q)
+    forward = rotations[..., 0, :, 0]
+    return np.arctan2(forward[..., 1], forward[..., 0])

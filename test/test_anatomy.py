@@ -1,0 +1,137 @@
+"""The body's asymmetric cues: joint ranges, the mirror twin, and a tracker that picks the right one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.render import render
+from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
+from memo_ros.core.multiview.anatomy import JOINT_LIMITS, Anatomy, facing
+from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
+from memo_ros.core.simulation.scenarios import studio_cameras
+from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
+
+BODY = load_default_body()
+ANATOMY = Anatomy(BODY)
+SWAPPED = [
+    PART_NAMES.index(p.replace('_l', '_X').replace('_r', '_l').replace('_X', '_r'))
+    for p in PART_NAMES
+]
+
+
+def _bent_pose(heading_deg: float) -> np.ndarray:
+    """Return a standing pose with bent knees and elbows, the arms half raised, facing ``heading``."""
+    q = BODY.neutral()
+    values = {
+        'knee_l_y': -0.9,
+        'knee_r_y': -0.5,
+        'elbow_l_y': 1.3,
+        'elbow_r_y': 0.8,
+        'hip_l_y': 0.5,
+        'hip_r_y': 0.3,
+        'shoulder_l_y': 0.6,
+        'shoulder_r_y': -0.3,
+        'shoulder_l_x': -0.4,
+        'shoulder_r_x': 0.5,
+    }
+    for name, value in values.items():
+        q[BODY.coordinate_index(name)] = value
+    q[3:6] = matrix_to_rotvec(rot_z(np.radians(heading_deg)))
+    return q
+
+
+def _contours(cameras, q):
+    """Return what a perfect contour_node sees of pose ``q`` in every camera."""
+    rotations, origins = BODY.forward_kinematics(q)
+    tables = {}
+    for cam in cameras:
+        label = render(cam, rotations, origins, BODY.semi_axes, BODY.lengths).label
+        tables[cam.name] = occluding_contours(silhouette_outlines(label > 0))
+    return tables
+
+
+def test_the_twin_covers_the_same_volume_with_sides_swapped_except_the_feet():
+    rng = np.random.default_rng(3)
+    q = ANATOMY.clamp(BODY.neutral() + rng.normal(0.0, 0.5, BODY.n_coordinates))
+    twin = ANATOMY.twin(q)
+    rotations, origins = BODY.forward_kinematics(q)
+    rotations_t, origins_t = BODY.forward_kinematics(twin)
+    ends = BODY.distal_ends(rotations, origins)
+    ends_t = BODY.distal_ends(rotations_t, origins_t)
+    assert np.allclose(origins_t[SWAPPED], origins, atol=1e-9)
+    feet = [PART_NAMES.index('foot_l'), PART_NAMES.index('foot_r')]
+    others = [i for i in range(len(PART_NAMES)) if i not in feet]
+    assert np.allclose(ends_t[SWAPPED][others], ends[others], atol=1e-9)
+    assert np.linalg.norm(ends_t[SWAPPED][feet] - ends[feet], axis=1).min() > 0.1
+    assert np.allclose(ANATOMY.twin(twin), q, atol=1e-9)
+    heading = np.degrees(facing(BODY, twin) - facing(BODY, q)) % 360
+    assert heading == pytest.approx(180.0, abs=1e-6)
+
+
+def test_the_twin_of_bent_knees_and_elbows_leaves_the_anatomical_ranges():
+    q = _bent_pose(0.0)
+    assert not ANATOMY.outside(q).any()
+    outside = dict(zip(JOINT_LIMITS, ANATOMY.outside(ANATOMY.twin(q))))
+    for name in ('knee_l_y', 'knee_r_y', 'elbow_l_y', 'elbow_r_y'):
+        assert outside[name] > 0.4, outside
+
+
+def test_clamp_projects_into_the_ranges_and_wraps_the_other_hinges():
+    q = BODY.neutral()
+    q[BODY.coordinate_index('knee_l_y')] = 0.7
+    q[BODY.coordinate_index('elbow_r_y')] = -8.0
+    q[BODY.coordinate_index('elbow_l_z')] = 3 * np.pi + 0.25
+    out = ANATOMY.clamp(q)
+    assert out[BODY.coordinate_index('knee_l_y')] == 0.0
+    assert out[BODY.coordinate_index('elbow_r_y')] == 0.0
+    assert out[BODY.coordinate_index('elbow_l_z')] == pytest.approx(-np.pi + 0.25)
+    assert not ANATOMY.outside(out).any()
+
+
+def test_tangent_map_carries_rates_as_the_twin_carries_poses():
+    pose = _bent_pose(30.0)
+    rng = np.random.default_rng(5)
+    v = rng.normal(0.0, 1.0, BODY.n_coordinates)
+    v[3:6] = 0.0  # the root's rotation is a group: its rates are checked by the filter tests
+    dt = 1e-6
+    moved = pose + dt * v
+    expected = (ANATOMY.twin(moved) - ANATOMY.twin(pose)) / dt
+    assert np.allclose(ANATOMY.tangent_map() @ v, expected, atol=1e-4)
+
+
+@pytest.mark.parametrize('heading', [0.0, 90.0, 180.0, 270.0])
+def test_the_tracker_starts_the_right_way_round_from_the_silhouettes(heading):
+    cameras = studio_cameras(320, 240)
+    q_true = _bent_pose(heading)
+    tracker = ArticulatedTracker(BODY, cameras, TrackerSettings())
+    tables = _contours(cameras, q_true)
+    results = [tracker.step(int(k * 33e6), tables) for k in range(4)]
+    assert all(r.status == TRACKING for r in results)
+    last = results[-1]
+    error = np.degrees(np.angle(np.exp(1j * (facing(BODY, last.q) - facing(BODY, q_true)))))
+    assert abs(error) < 20.0, error
+    for name in ('knee_l_y', 'knee_r_y'):  # the legs on their own sides, bent the right way
+        k = BODY.coordinate_index(name)
+        assert last.q[k] < -0.2, (name, last.q[k], q_true[k])  # flexed, not straight
+    assert last.heading_confidence > 0.9 and not last.undecided
+
+
+def test_a_track_started_backwards_is_turned_round_by_its_twin():
+    cameras = studio_cameras(320, 240)
+    q_true = _bent_pose(45.0)
+    backwards = ANATOMY.clamp(ANATOMY.twin(q_true))
+    tracker = ArticulatedTracker(
+        BODY, cameras, TrackerSettings(twin_recheck=1), initial_pose=backwards
+    )
+    tables = _contours(cameras, q_true)
+    results = [tracker.step(int(k * 33e6), tables) for k in range(12)]
+    assert results[-1].twin_swaps >= 1
+    error = np.degrees(np.angle(np.exp(1j * (facing(BODY, results[-1].q) - facing(BODY, q_true)))))
+    assert abs(error) < 20.0, error
+
+
+def test_without_the_twin_the_confidence_is_not_claimed():
+    tracker = ArticulatedTracker(BODY, studio_cameras(320, 240), TrackerSettings(twin_evidence=0))
+    assert tracker.heading_confidence == 1.0
