@@ -67,6 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=2.0,
         help='with back-pressure, longest wait for a frame to be done, s (default 2)',
     )
+    parser.add_argument(
+        '--record-contours',
+        action='store_true',
+        help="also record every camera's /<cam>/contours (to re-run the tracker offline)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,8 +94,16 @@ def run(args: argparse.Namespace) -> int:
     ]
     if missing:
         raise CliError(f"{args.bag} lacks the studio's camera topics {', '.join(missing)}")
+    extra = [f'/{c}/contours' for c in cameras] if args.record_contours else []
     report = replay(
-        args.bag, studio_file, args.out, cameras, args.rate, args.frame_timeout, not args.no_launch
+        args.bag,
+        studio_file,
+        args.out,
+        cameras,
+        args.rate,
+        args.frame_timeout,
+        not args.no_launch,
+        extra,
     )
     print(
         f'replayed   {report["frames"]} frames of {args.bag} in {report["seconds"]:.1f} s '
@@ -164,6 +177,7 @@ def replay(
     rate: float = 0.0,
     frame_timeout: float = 2.0,
     launch_graph: bool = True,
+    extra_topics: list[str] | None = None,
 ) -> dict:
     """Launch the graph for ``studio_file`` (unless it runs already), play ``bag`` into it, record its outputs
     to ``out``; a report.
@@ -206,7 +220,9 @@ def replay(
         spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
         try:
             node.create_subscription(Header, '/memo/processed', pacer.on_processed, 100)
-            recorder = BagRecorder(node, out, RecordOptions(topics=OUTPUT_TOPICS))
+            recorder = BagRecorder(
+                node, out, RecordOptions(topics=[*OUTPUT_TOPICS, *(extra_topics or [])])
+            )
             spinner.start()
             player = BagPlayer(
                 node,
