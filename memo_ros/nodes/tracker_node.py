@@ -208,8 +208,8 @@ PARAMS: tuple[Param, ...] = (
     Param(
         'twin_evidence',
         1.0,
-        "evidence (contour misfit difference, sigma^2 per sample) that decides between the pose "
-        "and its twin (turned 180 degrees, sides swapped); 0 never follows the twin",
+        'evidence (contour misfit difference, sigma^2 per sample) that decides between the pose '
+        'and its twin (turned 180 degrees, sides swapped); 0 never follows the twin',
         0.0,
         100.0,
     ),
@@ -310,7 +310,9 @@ class TrackerNode(Node):
         self.first_stamp_ns: int | None = None
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
-        self.missed: dict[str, int] = dict.fromkeys(self.camera_names, 0)  # joined frames in a row without it
+        self.missed: dict[str, int] = dict.fromkeys(
+            self.camera_names, 0
+        )  # joined frames in a row without it
         self.late_stamps: dict[int, None] = {}  # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
         # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten

@@ -49,6 +49,7 @@ REFERENCE_SPACING_PX = (
     2.0  # the sample spacing the noise parameters refer to (contour_node's contour_step)
 )
 
+
 @dataclass
 class TrackerSettings:
     """Noises, gates and iteration counts of the tracker (the node's parameters)."""
@@ -86,7 +87,9 @@ class TrackerSettings:
     init_iterations: int = 15
     init_headings: int = 8
     hard_limits: bool = True  # every estimate projected into the anatomical ranges (JOINT_LIMITS)
-    twin_evidence: float = 1.0  # evidence (sigma^2 per sample) that decides leader vs twin; 0: no twin
+    twin_evidence: float = (
+        1.0  # evidence (sigma^2 per sample) that decides leader vs twin; 0: no twin
+    )
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
@@ -112,7 +115,9 @@ class FrameResult:
     seconds: float = 0.0
     reason: str = ''
     heading_confidence: float = 1.0  # how sure the tracker is that the pose is not its twin, 0.5-1
-    undecided: bool = False  # the twin is followed beside the pose: the evidence has not separated them
+    undecided: bool = (
+        False  # the twin is followed beside the pose: the evidence has not separated them
+    )
     twin_swaps: int = 0  # times the twin won and took the pose's place, since the start
 
 
@@ -306,7 +311,9 @@ class ArticulatedTracker:
         """
         ekf.q = self.anatomy.clamp(ekf.q)
 
-    def _follow_twin(self, contours, rays, masks, samples: int, dt: float, start_twin: bool) -> None:
+    def _follow_twin(
+        self, contours, rays, masks, samples: int, dt: float, start_twin: bool
+    ) -> None:
         """Track the leader's twin beside it and weigh the two by their fit to this frame's contours.
 
         The twin starts at every initialisation from the silhouettes, every
