@@ -13,6 +13,7 @@ from memo_ros.tools.benchmarks.foundation import (
     renderer_times,
     simulator_throughput,
 )
+from memo_ros.tools.benchmarks.graph_figures import print_graph_benchmark
 from memo_ros.tools.benchmarks.report import machine, with_command
 
 SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker', 'walker', 'graph')
@@ -97,7 +98,7 @@ def _suite(name: str):
             print_walker_benchmark
         )
     if name == 'graph':
-        return bench_graph.measure, with_command(bench_graph.print_graph_benchmark)
+        return bench_graph.measure, with_command(print_graph_benchmark)
     if name == 'contour-node':
         from memo_ros.tools.benchmarks.contour_node import (
             print_node_benchmark,
