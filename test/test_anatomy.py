@@ -101,7 +101,7 @@ def test_tangent_map_carries_rates_as_the_twin_carries_poses():
     assert np.allclose(ANATOMY.tangent_map() @ v, expected, atol=1e-4)
 
 
-@pytest.mark.parametrize('heading', [0.0, 90.0, 180.0, 270.0])
+@pytest.mark.parametrize('heading', [0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0])
 def test_the_tracker_starts_the_right_way_round_from_the_silhouettes(heading):
     cameras = studio_cameras(320, 240)
     q_true = _bent_pose(heading)

@@ -31,6 +31,8 @@ JOINT_LIMITS: dict[str, tuple[float, float]] = {
 }
 # the turn by pi about the body's own vertical: rotations about x and y change sign, about z not
 TWIN_SIGN = {'x': -1.0, 'y': -1.0, 'z': 1.0}
+# an elbow bent backwards by more than this is the same arm with the upper arm turned about its axis
+ELBOW_REFLEX = 0.2  # rad; below it a slightly negative elbow is only clamped to straight
 
 
 class Anatomy:
@@ -49,6 +51,14 @@ class Anatomy:
             for axis in axes
         ]
         self.wrap_index = np.array(sorted(set(hinges) - set(self.limit_index)), int)
+        self.arms = [
+            (
+                names.index(f'shoulder_{side}_x'),
+                names.index(f'elbow_{side}_y'),
+                names.index(f'elbow_{side}_z'),
+            )
+            for side in ('l', 'r')
+        ]
         self.twin_source = np.arange(self.n)
         self.twin_sign = np.ones(self.n)
         for k, name in enumerate(names):
@@ -58,6 +68,37 @@ class Anatomy:
             other = _other_side(joint)
             self.twin_source[k] = names.index(f'{other}_{axis}')
             self.twin_sign[k] = TWIN_SIGN[axis]
+
+    def reflexed_arms(self, q: np.ndarray) -> list[tuple[int, int, int]]:
+        """Return (shoulder, elbow_y, elbow_z) indices of every arm whose elbow bends backwards."""
+        return [arm for arm in self.arms if q[arm[1]] < -ELBOW_REFLEX]
+
+    def unreflex(self, q: np.ndarray, arm: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """Return the same arm with its elbow bent forwards, and the map of its tangent vectors.
+
+        The upper arm turned by pi about its own axis (the shoulder's rotation
+        times R_z(pi)) with the elbow's flexion negated and its twist less pi
+        puts every part exactly where it was: R_z(pi) R_y(-e) R_z(t - pi) =
+        R_y(e) R_z(t).  The elbow's anatomical range then holds without
+        moving the arm, which a clamp alone would straighten.
+        """
+        shoulder, elbow_y, elbow_z = arm
+        out = np.array(q, float)
+        turned = rotvec_to_matrix(out[shoulder : shoulder + 3]) @ rot_z(np.pi)
+        out[shoulder : shoulder + 3] = matrix_to_rotvec(turned)
+        out[elbow_y] = -out[elbow_y]
+        out[elbow_z] = out[elbow_z] - np.pi
+        M = np.eye(self.n)
+        M[shoulder, shoulder] = M[shoulder + 1, shoulder + 1] = -1.0  # body rates turn with it
+        M[elbow_y, elbow_y] = -1.0
+        return out, M
+
+    def project(self, q: np.ndarray) -> np.ndarray:
+        """Return ``q`` with backward-bent elbows turned round (:meth:`unreflex`), then clamped."""
+        out = np.array(q, float)
+        for arm in self.reflexed_arms(out):
+            out, _ = self.unreflex(out, arm)
+        return self.clamp(out)
 
     def clamp(self, q: np.ndarray) -> np.ndarray:
         """Project ``q`` into the anatomical ranges and wrap the other hinge angles into (-pi, pi]."""

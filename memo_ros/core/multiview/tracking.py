@@ -86,6 +86,7 @@ class TrackerSettings:
     init_sigma_rotation: float = 0.1
     init_iterations: int = 15
     init_headings: int = 8
+    init_refits: int = 4  # start candidates (heading or its twin) refitted within the ranges
     hard_limits: bool = True  # every estimate projected into the anatomical ranges (JOINT_LIMITS)
     twin_evidence: float = (
         1.0  # evidence (sigma^2 per sample) that decides leader vs twin; 0: no twin
@@ -156,6 +157,9 @@ class ArticulatedTracker:
         self.bad_frames = 0
         self.pending_pose: np.ndarray | None = self.initial_pose if use_initial_pose else None
         self.twin_ekf: ArticulatedEKF | None = None  # the leader's twin, while it is followed
+        self._start_twin: np.ndarray | None = (
+            None  # the start's best twin, from the heading search
+        )
         self.evidence = 0.0  # > 0: the leader fits better than its twin (sigma^2 per sample)
         self.twin_age = 0
         self.since_twin = 0  # frames since the twin was last followed
@@ -216,11 +220,12 @@ class ArticulatedTracker:
         report = self.ekf.update(measure, self.settings.iterations, self.settings.gate_sigma)
         self.stamp_ns = stamp_ns
         matched, unselected = self._last_counts
+        free = self.ekf.q.copy()  # before the ranges: its twin bends the right way
         if self.settings.hard_limits:
             self._clamp(self.ekf)
         if self.settings.twin_evidence > 0:
             self._follow_twin(
-                contours, rays, masks, samples, dt, start_twin=initialised and not from_pose
+                contours, rays, masks, samples, dt, initialised and not from_pose, free
             )
         consistent = (
             matched >= self.settings.min_matched_fraction * samples
@@ -309,10 +314,15 @@ class ArticulatedTracker:
         """Project a filter's pose into the anatomical ranges (the rates and covariance stay as they are:
         zeroing a rate at a bound without its correlations made a straight knee run away).
         """
+        for arm in self.anatomy.reflexed_arms(ekf.q):  # exact: the arm does not move
+            ekf.q, M = self.anatomy.unreflex(ekf.q, arm)
+            ekf.v = M @ ekf.v
+            T = np.kron(np.eye(2), M)
+            ekf.P = T @ ekf.P @ T.T
         ekf.q = self.anatomy.clamp(ekf.q)
 
     def _follow_twin(
-        self, contours, rays, masks, samples: int, dt: float, start_twin: bool
+        self, contours, rays, masks, samples: int, dt: float, start_twin: bool, free: np.ndarray
     ) -> None:
         """Track the leader's twin beside it and weigh the two by their fit to this frame's contours.
 
@@ -328,7 +338,9 @@ class ArticulatedTracker:
             due = s.twin_recheck > 0 and self.since_twin >= s.twin_recheck
             if not (start_twin or due or self.bad_frames):
                 return
-            self.twin_ekf = self._twin_filter(self.ekf)
+            self.twin_ekf = self._twin_filter(self.ekf, free)
+            if start_twin and self._start_twin is not None:
+                self.twin_ekf.q = self._start_twin
             self.twin_age = 0
             if start_twin:
                 self.evidence = 0.0
@@ -363,11 +375,15 @@ class ArticulatedTracker:
             self.twin_ekf = None
             self.since_twin = 0
 
-    def _twin_filter(self, ekf: ArticulatedEKF) -> ArticulatedEKF:
-        """A filter at the twin of ``ekf``'s state, its covariance carried over by the same map."""
+    def _twin_filter(self, ekf: ArticulatedEKF, free: np.ndarray) -> ArticulatedEKF:
+        """Return a filter at the twin of ``ekf``'s state, its covariance carried over by the same map.
+
+        The twin is taken of ``free``, the pose before the ranges were
+        imposed: a hinge the leader had to straighten bends the right way in it.
+        """
         twin = ArticulatedEKF(self.model)
         M = self.anatomy.tangent_map()
-        twin.q = self.anatomy.twin(ekf.q)
+        twin.q = self.anatomy.twin(free)
         twin.v = M @ ekf.v
         T = np.zeros((2 * M.shape[0],) * 2)
         T[: M.shape[0], : M.shape[0]] = M
@@ -375,7 +391,9 @@ class ArticulatedTracker:
         twin.P = T @ ekf.P @ T.T
         return twin
 
-    def _refit(self, ekf: ArticulatedEKF, q: np.ndarray, contours, rays, masks) -> UpdateReport:
+    def _refit(
+        self, ekf: ArticulatedEKF, q: np.ndarray, contours, rays, masks, clamp: bool = True
+    ) -> UpdateReport:
         """Fit a start pose to one frame from a broad prior: ``init_iterations`` relinearisations in
         rounds of five, each round ending in the anatomical ranges (hard limits) and starting anew.
         """
@@ -390,7 +408,7 @@ class ArticulatedTracker:
                 self._measurement_function(contours, rays, masks), min(left, 5), gate=1e6
             )
             left -= 5
-            if s.hard_limits:
+            if s.hard_limits and clamp:
                 self._clamp(ekf)
             q = ekf.q
         return report
@@ -571,18 +589,33 @@ class ArticulatedTracker:
             [self.cameras[c] for c in contours], [contours[c] for c in contours]
         )
         neutral = self.body.neutral()
-        best = None
+        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        samples = sum(len(t) for t in contours.values())
+        project = self.anatomy.project if s.hard_limits else np.asarray
+        candidates: list[tuple[float, np.ndarray, np.ndarray]] = []
         for k in range(max(s.init_headings, 1)):
             q = neutral.copy()
             heading = 2 * np.pi * k / max(s.init_headings, 1)
             q[3:6] = matrix_to_rotvec(rot_z(heading))
             if centre is not None:
                 q[0:2] = centre[0:2]
-            masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
-            report = self._refit(self.ekf, q, contours, rays, masks)
-            score = (self._last_counts[0], -report.nis if np.isfinite(report.nis) else -np.inf)
-            if best is None or score > best[0]:
-                best = (score, self.ekf.q.copy())
+            self._refit(self.ekf, q, contours, rays, masks, clamp=False)
+            free = self.ekf.q.copy()
+            # the free fit and its twin, both within the ranges: a fit turned backwards whose knees
+            # had to overextend is, as its twin, a fit the right way round
+            pair = (project(free), project(self.anatomy.twin(free)))
+            for own, other in (pair, pair[::-1]):
+                cost = self._fit_cost(own, contours, rays, masks, samples)
+                candidates.append((cost, own, other))
+        # the most promising are refitted within the ranges before one is chosen
+        best: tuple[float, np.ndarray, np.ndarray] | None = None
+        for _, own, other in sorted(candidates, key=lambda c: c[0])[: max(s.init_refits, 1)]:
+            self._refit(self.ekf, own, contours, rays, masks)
+            cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+            if best is None or cost < best[0]:
+                best = (cost, self.ekf.q.copy(), other)
+        assert best is not None
+        self._start_twin = best[2]
         self.ekf.initialize(best[1], None, sigma_q, sigma_v)
 
 
