@@ -524,7 +524,9 @@ class ContourNode(Node):
     def _segment(self, msg: Image, image: np.ndarray, stamp: int) -> None:
         """Segment one accepted image within the tracked region and publish its contours."""
         self.pipeline.set_roi(self._tracked_region(stamp, image.shape[:2]))
-        result = self.pipeline.process(image)
+        # edge lines only for a listener (Rohr's walker, a recorder): the studio's tracker has none
+        listened = self.pub_edges.get_subscription_count() > 0
+        result = self.pipeline.process(image, edges=listened)
         if (
             self.pipeline.background is not None
             and self.pipeline.background is not self._saved_background
@@ -535,7 +537,7 @@ class ContourNode(Node):
         if result.warming_up:
             self.health.count('warming_up')
         self.health.set('contour_points', len(result.contours))
-        self.health.set('edge_lines', len(result.edges))
+        self.health.set('edge_lines', len(result.edges) if listened else 'off (no subscriber)')
         self.health.set('last_frame_ms', f'{1000 * sum(result.timings.values()):.2f}')
         self.health.ok()
 

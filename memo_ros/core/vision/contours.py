@@ -222,9 +222,14 @@ class ContourPipeline:
         """Where the tracked body is expected (bool (H, W)), for keep='tracked' and the sequence segmenter."""
         self.segmenter.set_roi(roi)
 
-    def process(self, image: np.ndarray) -> PipelineResult:
-        """Run one frame through every stage: grey uint8 (H, W), or (H, W, C) for the sequence segmenter."""
+    def process(self, image: np.ndarray, edges: bool | None = None) -> PipelineResult:
+        """Run one frame through every stage: grey uint8 (H, W), or (H, W, C) for the sequence segmenter.
+
+        ``edges`` overrides the settings' choice of computing the edge lines
+        (only Rohr's walker uses them: a node computes them when someone listens).
+        """
         s = self.settings
+        want_edges = s.edges if edges is None else edges
         image = np.asarray(image)
         if image.ndim != 2 and not (self.segmenter.colour and image.ndim == 3):
             raise ValueError(f'the pipeline takes one grey (H, W) frame, got shape {image.shape}')
@@ -256,8 +261,8 @@ class ContourPipeline:
             s.contour_offset,
         )
         t3 = clock()
-        if s.edges and segmentation.box is not None:
-            edges = edge_lines_in_boxes(
+        if want_edges and segmentation.box is not None:
+            lines = edge_lines_in_boxes(
                 grey,
                 [r.box for r in segmentation.regions],
                 s.edge_low,
@@ -267,14 +272,14 @@ class ContourPipeline:
                 s.edge_margin,
             )
         else:
-            edges = np.zeros(0, EDGE_DTYPE)
+            lines = np.zeros(0, EDGE_DTYPE)
         t4 = clock()
         timings.update(cleanup=t2 - t1, contours=t3 - t2, edges=t4 - t3)
         return PipelineResult(
             segmentation.mask,
             segmentation.box,
             contours,
-            edges,
+            lines,
             timings,
             False,
             segmentation,
