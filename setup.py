@@ -36,7 +36,11 @@ setup(
     package_data={package_name: ['config/*']},
     include_package_data=False,
     install_requires=install_requires,
-    extras_require={'test': ['pytest>=8', 'ruff>=0.17', 'mypy>=2.4']},
+    extras_require={
+        'test': ['pytest>=8', 'ruff>=0.17', 'mypy>=2.4'],
+        # evaluate --keypoints: BlazePose's weights ship inside this wheel; no node imports it
+        'keypoints': ['mediapipe==0.10.14'],
+    },
     zip_safe=True,
     maintainer='memo_ros developers',
     maintainer_email='memo_ros@example.org',

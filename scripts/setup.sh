@@ -17,5 +17,9 @@ stamp=.venv/.memo_ros_installed
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "memo_ros setup: installing into .venv (first run takes a minute)" >&2
   .venv/bin/python -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[test]'
+  # memo_ros[keypoints] (evaluate --keypoints) without mediapipe's opencv-contrib-python and jax:
+  # the package's opencv-python-headless already provides cv2, and BlazePose needs neither
+  .venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps -c constraints.txt \
+    mediapipe absl-py attrs flatbuffers protobuf
   echo "$want" > "$stamp"
 fi

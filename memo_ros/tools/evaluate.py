@@ -61,6 +61,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'camera and count frames lost, without ground truth (needs --truth or --images or both)',
     )
     parser.add_argument(
+        '--keypoints',
+        action='store_true',
+        help='with --images: compare the track with a learned body-keypoint detector '
+        "(mediapipe's BlazePose, pip install memo_ros[keypoints]) triangulated over the cameras: "
+        'MPJPE raw, offset-removed and Procrustes-aligned, left/right and heading per frame',
+    )
+    parser.add_argument(
         '--studio',
         type=Path,
         help='studio YAML (body height, cameras for overlays, contour_node '
@@ -81,12 +88,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from memo_ros.tools.cli import CliError
 
+    if args.keypoints and args.images is None:
+        raise CliError('--keypoints needs --images (the recording)')
     if args.truth is None and args.images is None:
         raise CliError('give --truth (simulated bags) or --images (a real recording), or both')
     for name in ('truth', 'estimate', 'images'):
         path = getattr(args, name)
         if path is not None and not path.exists():
             raise CliError(f'no bag at {path} (--{name})')
+    if args.keypoints:
+        return run_keypoints(args)
     if args.truth is None:
         return run_without_truth(args)
     studio = _find_studio(args.truth, args.studio)
@@ -174,6 +185,44 @@ def run_without_truth(args: argparse.Namespace) -> int:
     print_silhouette_report(report)
     if summary.get('plots'):
         print(f'{"plots":<28} {len(summary["plots"])} files in {Path(summary["plots"][0]).parent}')
+    return 0
+
+
+def run_keypoints(args: argparse.Namespace) -> int:
+    """Score a track of a real recording against a learned-keypoint reference."""
+    from memo_ros.tools.cli import CliError
+    from memo_ros.tools.keypoint_eval import (
+        cache_path,
+        evaluate_keypoints,
+        print_keypoint_report,
+        write_keypoint_per_frame,
+        write_keypoint_plots,
+    )
+    from memo_ros.tools.keypoints import KeypointsUnavailable
+
+    studio = _find_studio(args.images, args.studio)
+    if studio is None:
+        raise CliError(f'no studio for {args.images}: give --studio (the calibrated cameras)')
+    estimate = load_track(args.estimate, ESTIMATE_TOPICS)
+    if not estimate.origins:
+        raise CliError(
+            f'{args.estimate} has no {ESTIMATE_TOPICS[0]} messages: nothing was tracked'
+        )
+    try:
+        report = evaluate_keypoints(
+            args.images, estimate.origins, studio, cache_path(args.estimate)
+        )
+    except (KeypointsUnavailable, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    summary = report.summary()
+    if args.per_frame:
+        write_keypoint_per_frame(args.per_frame, report)
+    if args.plots:
+        summary['plots'] = [str(p) for p in write_keypoint_plots(args.plots, report)]
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print_keypoint_report(report)
     return 0
 
 

@@ -1,0 +1,156 @@
+"""A tracked body against an independent keypoint reference: which side is which, and joint errors.
+
+The reference is a learned 2D body-keypoint detector's output triangulated
+over the calibrated cameras (:mod:`memo_ros.core.evaluation.triangulation`).
+It knows a person's left from right and front from back, which silhouettes
+cannot tell; it is not ground truth: its joints are the detector's idea of a
+joint (a hip keypoint is not the model's hip centre), and it carries the
+detector's and the calibration's errors.  Hence three joint errors: raw,
+with each joint's mean offset over the sequence removed (definitions differ),
+and after a per-frame similarity (Procrustes) alignment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from memo_ros.core.geometry.body import PART_NAMES
+
+# the model's joint centres compared (part origins) and the keypoints standing for them
+JOINTS: tuple[str, ...] = (
+    'shoulder_l',
+    'shoulder_r',
+    'elbow_l',
+    'elbow_r',
+    'wrist_l',
+    'wrist_r',
+    'hip_l',
+    'hip_r',
+    'knee_l',
+    'knee_r',
+    'ankle_l',
+    'ankle_r',
+)
+MODEL_PART = {  # joint -> the part whose origin is that joint's centre
+    'shoulder_l': 'upper_arm_l',
+    'shoulder_r': 'upper_arm_r',
+    'elbow_l': 'forearm_l',
+    'elbow_r': 'forearm_r',
+    'wrist_l': 'hand_l',
+    'wrist_r': 'hand_r',
+    'hip_l': 'thigh_l',
+    'hip_r': 'thigh_r',
+    'knee_l': 'shank_l',
+    'knee_r': 'shank_r',
+    'ankle_l': 'foot_l',
+    'ankle_r': 'foot_r',
+}
+# BlazePose's 33 landmarks (mediapipe): the subject's own left and right
+BLAZEPOSE = {
+    'nose': 0,
+    'shoulder_l': 11,
+    'shoulder_r': 12,
+    'elbow_l': 13,
+    'elbow_r': 14,
+    'wrist_l': 15,
+    'wrist_r': 16,
+    'hip_l': 23,
+    'hip_r': 24,
+    'knee_l': 25,
+    'knee_r': 26,
+    'ankle_l': 27,
+    'ankle_r': 28,
+}
+SWAP = [
+    JOINTS.index(j.replace('_l', '_X').replace('_r', '_l').replace('_X', '_r')) for j in JOINTS
+]
+
+
+def model_joints(origins: np.ndarray) -> np.ndarray:
+    """Return the compared joint centres (..., 12, 3) from part origins (..., 14, 3)."""
+    return origins[..., [PART_NAMES.index(MODEL_PART[j]) for j in JOINTS], :]
+
+
+def heading(joints: np.ndarray) -> np.ndarray:
+    """Return where a body faces about world z, rad (...,): across the hips and shoulders, right to left, x up."""
+    left = joints[..., [JOINTS.index('hip_l'), JOINTS.index('shoulder_l')], :].mean(-2)
+    right = joints[..., [JOINTS.index('hip_r'), JOINTS.index('shoulder_r')], :].mean(-2)
+    across = left - right
+    forward = np.stack([across[..., 1], -across[..., 0]], -1)  # (left - right) x z, horizontal
+    return np.arctan2(forward[..., 1], forward[..., 0])
+
+
+def procrustes(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Return ``estimate`` (J, 3) best aligned to ``reference`` by rotation, translation and scale."""
+    mu_e, mu_r = estimate.mean(0), reference.mean(0)
+    e, r = estimate - mu_e, reference - mu_r
+    u, s, vt = np.linalg.svd(e.T @ r)
+    d = np.sign(np.linalg.det(u @ vt))
+    fix = np.diag([1.0, 1.0, d])
+    rotation = u @ fix @ vt
+    scale = (s * np.diag(fix)).sum() / max((e**2).sum(), 1e-12)
+    return scale * e @ rotation + mu_r
+
+
+@dataclass
+class KeypointComparison:
+    """Per frame and joint errors (mm) of a track against the reference, and side checks."""
+
+    raw_mm: np.ndarray  # (F, J)
+    offset_removed_mm: np.ndarray  # (F, J)
+    procrustes_mm: np.ndarray  # (F, J)
+    swapped_mm: np.ndarray  # (F,) mean raw error with the model's left and right exchanged
+    sides_agree: np.ndarray  # (F,) bool: as labelled fits better than swapped
+    heading_error_deg: np.ndarray  # (F,) signed, in (-180, 180]
+
+    def summary(self) -> dict:
+        """Return the figures a user reads: means per joint and overall, side and heading counts."""
+        per_joint = {
+            name: {
+                'raw_mm': float(np.nanmean(self.raw_mm[:, k])),
+                'offset_removed_mm': float(np.nanmean(self.offset_removed_mm[:, k])),
+                'procrustes_mm': float(np.nanmean(self.procrustes_mm[:, k])),
+            }
+            for k, name in enumerate(JOINTS)
+        }
+        frames = len(self.sides_agree)
+        return {
+            'frames': frames,
+            'mpjpe_raw_mm': float(np.nanmean(self.raw_mm)),
+            'mpjpe_offset_removed_mm': float(np.nanmean(self.offset_removed_mm)),
+            'mpjpe_procrustes_mm': float(np.nanmean(self.procrustes_mm)),
+            'mpjpe_sides_swapped_mm': float(np.nanmean(self.swapped_mm)),
+            'frames_sides_agree': int(self.sides_agree.sum()),
+            'frames_sides_disagree': int(frames - self.sides_agree.sum()),
+            'heading_error_deg_median': float(np.nanmedian(np.abs(self.heading_error_deg))),
+            'heading_error_deg_max': float(np.nanmax(np.abs(self.heading_error_deg))),
+            'per_joint': per_joint,
+        }
+
+
+def compare(estimate: np.ndarray, reference: np.ndarray) -> KeypointComparison:
+    """Compare model joints (F, 12, 3) with reference joints (F, 12, 3, NaN where missing), metres."""
+    raw = np.linalg.norm(estimate - reference, axis=-1) * 1000.0
+    swapped = np.linalg.norm(estimate[:, SWAP] - reference, axis=-1) * 1000.0
+    offset = np.nanmean(estimate - reference, axis=0)
+    offset_removed = np.linalg.norm(estimate - offset - reference, axis=-1) * 1000.0
+    aligned = np.full(raw.shape, np.nan)
+    for f in range(len(estimate)):  # one small SVD per frame
+        ok = np.all(np.isfinite(reference[f]), -1)
+        if ok.sum() >= 4:
+            fitted = procrustes(estimate[f, ok], reference[f, ok])
+            aligned[f, ok] = np.linalg.norm(fitted - reference[f, ok], axis=-1) * 1000.0
+    with np.errstate(invalid='ignore'):
+        raw_mean = np.nanmean(np.where(np.isfinite(raw), raw, np.nan), axis=1)
+        swapped_mean = np.nanmean(swapped, axis=1)
+    turn = heading(estimate) - heading(reference)
+    return KeypointComparison(
+        raw,
+        offset_removed,
+        aligned,
+        swapped_mean,
+        raw_mean < swapped_mean,
+        np.degrees(np.angle(np.exp(1j * turn))),
+    )

@@ -1,0 +1,187 @@
+"""`memo-ros evaluate --keypoints`: a track against a learned-keypoint reference of the recording.
+
+The detector runs on every camera's images (:mod:`memo_ros.tools.keypoints`),
+its keypoints are triangulated over the calibrated cameras as Pose2Sim does
+(:mod:`memo_ros.core.evaluation.triangulation`), and the track's joint centres
+are compared with them (:mod:`memo_ros.core.evaluation.keypoints`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from memo_ros.core.evaluation.keypoints import (
+    JOINTS,
+    KeypointComparison,
+    compare,
+    heading,
+    model_joints,
+)
+from memo_ros.core.evaluation.triangulation import Triangulation, triangulate
+from memo_ros.tools.keypoints import KEYPOINT_NAMES, Detections, detect
+
+MAX_ERROR_PX = 15.0  # Pose2Sim's default reprojection threshold is 15 px on full-size images
+MIN_CONFIDENCE = 0.3
+
+
+@dataclass
+class KeypointReport:
+    """The reference, the comparison, and the frames they cover."""
+
+    detections: Detections
+    reference: Triangulation
+    comparison: KeypointComparison
+    stamps: np.ndarray
+    nose_in_front: float  # fraction of frames where the reference's nose is ahead of its shoulders
+
+    def summary(self) -> dict:
+        """Return the comparison's figures with the reference's own quality."""
+        out = self.comparison.summary()
+        error = self.reference.error_px
+        out['reference_reprojection_px'] = {
+            name: float(np.nanmean(error[:, k])) for k, name in enumerate(JOINTS)
+        }
+        out['reference_nose_in_front_fraction'] = self.nose_in_front
+        out['cameras'] = self.detections.cameras
+        return out
+
+
+def cache_path(estimate: Path) -> Path:
+    """Return where the detections of the recording scored against ``estimate`` are kept."""
+    return estimate.with_name(estimate.name + '.keypoints.npz')
+
+
+def evaluate_keypoints(
+    images: Path, origins: dict[int, np.ndarray], studio, cache: Path | None
+) -> KeypointReport:
+    """Detect, triangulate and compare: ``origins`` maps stamps to the track's part origins."""
+    detections = detect(images, studio.camera_names, cache)
+    stamps = np.array([s for s in detections.stamps if int(s) in origins], np.int64)
+    if not len(stamps):
+        raise ValueError('no frame of the estimate has images in every camera')
+    rows = np.searchsorted(detections.stamps, stamps)
+    columns = [KEYPOINT_NAMES.index(j) for j in JOINTS]
+    cameras = [studio.camera(c) for c in detections.cameras]
+    reference = triangulate(
+        cameras,
+        detections.uv[:, rows][:, :, columns],
+        detections.confidence[:, rows][:, :, columns],
+        MIN_CONFIDENCE,
+        MAX_ERROR_PX,
+    )
+    nose = triangulate(
+        cameras,
+        detections.uv[:, rows][:, :, [KEYPOINT_NAMES.index('nose')]],
+        detections.confidence[:, rows][:, :, [KEYPOINT_NAMES.index('nose')]],
+        MIN_CONFIDENCE,
+        MAX_ERROR_PX,
+    ).points[:, 0]
+    estimate = model_joints(np.stack([origins[int(s)] for s in stamps]))
+    shoulders = reference.points[:, [JOINTS.index('shoulder_l'), JOINTS.index('shoulder_r')]]
+    facing = heading(reference.points)
+    ahead = np.einsum(
+        'fi,fi->f',
+        (nose - shoulders.mean(1))[:, :2],
+        np.stack([np.cos(facing), np.sin(facing)], -1),
+    )
+    seen = np.isfinite(ahead)
+    return KeypointReport(
+        detections,
+        reference,
+        compare(estimate, reference.points),
+        stamps,
+        float((ahead[seen] > 0).mean()) if seen.any() else float('nan'),
+    )
+
+
+def print_keypoint_report(report: KeypointReport) -> None:
+    """Print the per-joint table and the side and heading figures."""
+    s = report.summary()
+    print(f'{"joint":<12} {"raw mm":>8} {"offset-removed":>15} {"Procrustes":>11} {"ref px":>7}')
+    for name in JOINTS:
+        j = s['per_joint'][name]
+        print(
+            f'{name:<12} {j["raw_mm"]:8.1f} {j["offset_removed_mm"]:15.1f} '
+            f'{j["procrustes_mm"]:11.1f} {s["reference_reprojection_px"][name]:7.1f}'
+        )
+    print(
+        f'{"all":<12} {s["mpjpe_raw_mm"]:8.1f} {s["mpjpe_offset_removed_mm"]:15.1f} '
+        f'{s["mpjpe_procrustes_mm"]:11.1f}'
+    )
+    print()
+    print(f'{"frames":<28} {s["frames"]}')
+    print(
+        f'{"left/right agree":<28} {s["frames_sides_agree"]} of {s["frames"]} '
+        f'(raw MPJPE with the sides swapped: {s["mpjpe_sides_swapped_mm"]:.1f} mm)'
+    )
+    print(
+        f'{"heading error":<28} median {s["heading_error_deg_median"]:.1f} deg, '
+        f'max {s["heading_error_deg_max"]:.1f} deg'
+    )
+    print(
+        f'{"reference":<28} mediapipe BlazePose (full) on {len(s["cameras"])} cameras, '
+        f'nose ahead of the shoulders in {100 * s["reference_nose_in_front_fraction"]:.0f} % '
+        'of frames'
+    )
+
+
+def write_keypoint_per_frame(path: Path, report: KeypointReport) -> None:
+    """Write one CSV row per frame: stamp, errors, side check, heading error."""
+    c = report.comparison
+    lines = [
+        'stamp_ns,mpjpe_raw_mm,mpjpe_offset_removed_mm,mpjpe_procrustes_mm,'
+        'mpjpe_swapped_mm,sides_agree,heading_error_deg'
+    ]
+    for f, stamp in enumerate(report.stamps):
+        lines.append(
+            f'{int(stamp)},{np.nanmean(c.raw_mm[f]):.2f},{np.nanmean(c.offset_removed_mm[f]):.2f},'
+            f'{np.nanmean(c.procrustes_mm[f]):.2f},{c.swapped_mm[f]:.2f},'
+            f'{int(c.sides_agree[f])},{c.heading_error_deg[f]:.2f}'
+        )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
+
+
+def write_keypoint_plots(folder: Path, report: KeypointReport) -> list[Path]:
+    """Write per-joint error bars and per-frame errors as PNGs; return their paths."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(parents=True, exist_ok=True)
+    s = report.summary()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    x = np.arange(len(JOINTS))
+    for k, (key, label) in enumerate(
+        [
+            ('raw_mm', 'raw'),
+            ('offset_removed_mm', 'offset removed'),
+            ('procrustes_mm', 'Procrustes'),
+        ]
+    ):
+        ax.bar(x + (k - 1) * 0.27, [s['per_joint'][j][key] for j in JOINTS], 0.27, label=label)
+    ax.set_xticks(x, JOINTS, rotation=45, ha='right')
+    ax.set_ylabel('error against the keypoint reference, mm')
+    ax.legend()
+    fig.tight_layout()
+    bars = folder / 'keypoints_per_joint.png'
+    fig.savefig(bars, dpi=100)
+    plt.close(fig)
+    c = report.comparison
+    fig, ax = plt.subplots(figsize=(9, 4))
+    frames = np.arange(len(report.stamps))
+    ax.plot(frames, np.nanmean(c.raw_mm, 1), label='raw')
+    ax.plot(frames, np.nanmean(c.procrustes_mm, 1), label='Procrustes')
+    ax.plot(frames, c.swapped_mm, ':', label='sides swapped (raw)')
+    ax.set_xlabel('frame')
+    ax.set_ylabel('mean joint error, mm')
+    ax.legend()
+    fig.tight_layout()
+    per_frame = folder / 'keypoints_per_frame.png'
+    fig.savefig(per_frame, dpi=100)
+    plt.close(fig)
+    return [bars, per_frame]
