@@ -171,10 +171,17 @@ class ArticulatedTracker:
         self.ekf.model = self.model
 
     def set_pose(self, q: np.ndarray) -> None:
-        """Use ``q`` (and zero velocity) at the next frame, like robot_localization's set_pose."""
+        """Use ``q`` (and zero velocity) at the next frame, like robot_localization's set_pose.
+
+        A pose no person in the studio can take (:func:`anatomy.pose_problem`) raises ValueError
+        with the reason and leaves the filter as it was.
+        """
+        from memo_ros.core.multiview.anatomy import pose_problem, studio_volume  # (here only)
+
+        problem = pose_problem(self.body, q, studio_volume(list(self.cameras.values())))
+        if problem:
+            raise ValueError(problem)
         q = np.asarray(q, float)
-        if q.shape != (self.body.n_coordinates,) or not np.all(np.isfinite(q)):
-            raise ValueError(f'a pose needs {self.body.n_coordinates} finite coordinates')
         self.reset()
         self.pending_pose = q
 
