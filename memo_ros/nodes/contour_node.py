@@ -257,7 +257,11 @@ class ContourNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('contour_node', **kwargs)
-        self.params = declare(self, PARAMS, on_change=self._on_parameters_set)
+        self.params = declare(
+            self,
+            PARAMS,
+            on_change=lambda: self.health.guard(self._on_parameters_set, 'parameter change')(),
+        )
         camera = self.get_namespace().strip('/') or 'camera'
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id=camera)
         self.camera_name = camera
@@ -281,7 +285,9 @@ class ContourNode(Node):
             history=HistoryPolicy.KEEP_LAST,
             depth=self.params['image_queue_depth'],
         )
-        self.create_subscription(Image, 'image_raw', self._on_image, image_qos)
+        self.create_subscription(
+            Image, 'image_raw', self.health.guard(self._on_image, 'image callback'), image_qos
+        )
         info_qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE
             if self.params['reliable_camera_info']
@@ -289,13 +295,23 @@ class ContourNode(Node):
             history=HistoryPolicy.KEEP_LAST,
             depth=INFO_QUEUE_DEPTH,
         )
-        self.create_subscription(CameraInfo, 'camera_info', self._on_camera_info, info_qos)
+        self.create_subscription(
+            CameraInfo,
+            'camera_info',
+            self.health.guard(self._on_camera_info, 'camera_info callback'),
+            info_qos,
+        )
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
         if self.camera is not None:
-            self.create_subscription(MarkerArray, MARKERS_TOPIC, self._on_markers, 10)
+            self.create_subscription(
+                MarkerArray,
+                MARKERS_TOPIC,
+                self.health.guard(self._on_markers, 'markers callback'),
+                10,
+            )
 
     @property
     def colour(self) -> bool:
@@ -511,10 +527,13 @@ class ContourNode(Node):
                 previous_ns,
                 self.create_timer(
                     self.params['roi_wait'],
-                    lambda: self._segment_pending(
-                        'roi_wait_timeouts',
-                        "the tracker's body of the previous image did not come within roi_wait: "
-                        'segmented with an older one',
+                    self.health.guard(
+                        lambda: self._segment_pending(
+                            'roi_wait_timeouts',
+                            "the tracker's body of the previous image did not come within "
+                            'roi_wait: segmented with an older one',
+                        ),
+                        'roi_wait timer',
                     ),
                 ),
             )

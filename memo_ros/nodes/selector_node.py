@@ -28,7 +28,12 @@ from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import PART_NAMES
-from memo_ros.core.multiview.motion import EXTRA_STATE_NAMES, ConstantVelocity
+from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
+from memo_ros.core.multiview.motion import (
+    EXTRA_STATE_NAMES,
+    ConstantVelocity,
+    named_values_problem,
+)
 from memo_ros.core.multiview.selection import (
     MAX_CAMERAS,
     NORMS,
@@ -157,7 +162,10 @@ class SelectorNode(Node):
         super().__init__('selector_node', **kwargs)
         # the core refuses combinations the per-parameter ranges cannot, with the reason
         self.params = declare(
-            self, PARAMS, on_change=self._on_parameters_set, check=selection_settings
+            self,
+            PARAMS,
+            on_change=lambda: self.health.guard(self._on_parameters_set, 'parameter change')(),
+            check=selection_settings,
         )
         self.settings = selection_settings(self.params)
         self.studio: Studio = studio_from_node(self)
@@ -165,6 +173,7 @@ class SelectorNode(Node):
         self.names = self.studio.camera_names
         self.selector = CameraSelector(self.body, self.studio.cameras, self.settings)
         self.motion = ConstantVelocity(self.body)
+        self.volume = studio_volume(self.studio.cameras)
         self.coordinate_index = {n: i for i, n in enumerate(self.body.coordinate_names)}
         self.liveness = CameraLiveness(
             list(self.names),
@@ -187,17 +196,27 @@ class SelectorNode(Node):
             self.create_subscription(
                 CameraInfo,
                 f'/{cam}/camera_info',
-                lambda msg, cam=cam: self._on_camera_info(cam, msg),
+                self.health.guard(
+                    lambda msg, cam=cam: self._on_camera_info(cam, msg),
+                    f'{cam}/camera_info callback',
+                ),
                 reliable,
             )
             self.create_subscription(
                 PointCloud2,
                 f'/{cam}/contours',
-                lambda data, cam=cam: self._on_contours(cam, data),
+                self.health.guard(
+                    lambda data, cam=cam: self._on_contours(cam, data), f'{cam}/contours callback'
+                ),
                 reliable,
                 raw=True,
             )
-        self.create_subscription(JointState, POSTERIOR_TOPIC, self._on_joint_states, reliable)
+        self.create_subscription(
+            JointState,
+            POSTERIOR_TOPIC,
+            self.health.guard(self._on_joint_states, 'joint_states callback'),
+            reliable,
+        )
         self.publisher = self.create_publisher(DiagnosticArray, ASSIGNMENT_TOPIC, reliable)
         self.health.set('cameras', ','.join(self.names))
         self.get_logger().info(
@@ -238,6 +257,10 @@ class SelectorNode(Node):
                 f'joint_states: {len(names)} names, {len(pos)} positions, {len(vel)} velocities',
             )
             return
+        problem = named_values_problem(names, pos)
+        if problem:
+            self.health.drop('bad_joint_state', f'joint_states refused: {problem}')
+            return
         unknown = [
             n for n in names if n not in self.coordinate_index and n not in EXTRA_STATE_NAMES
         ]
@@ -263,6 +286,16 @@ class SelectorNode(Node):
             self.health.note(
                 'no_velocity', 'joint_states without velocities: predicted as standing still'
             )
+        q = np.zeros(self.body.n_coordinates)
+        qdot = np.zeros(self.body.n_coordinates)
+        for name, p, v in zip(names, pos, vel):
+            i = self.coordinate_index.get(name)
+            if i is not None:
+                q[i], qdot[i] = p, v
+        problem = pose_problem(self.body, q, self.volume)
+        if problem:  # the last good posteriors stay
+            self.health.drop('absurd_joint_state', f'joint_states refused: {problem}')
+            return
         if self.posteriors and stamp <= self.posteriors[-1][0]:
             if stamp == self.posteriors[-1][0]:
                 self.health.drop(
@@ -273,12 +306,6 @@ class SelectorNode(Node):
             self.health.note(
                 'time_jump_resets', 'joint_states stamps went backwards (bag loop?): history reset'
             )
-        q = np.zeros(self.body.n_coordinates)
-        qdot = np.zeros(self.body.n_coordinates)
-        for name, p, v in zip(names, pos, vel):
-            i = self.coordinate_index.get(name)
-            if i is not None:
-                q[i], qdot[i] = p, v
         self.posteriors.append((stamp, q, qdot))
 
     def _check_camera_info(self, cam: str, msg: CameraInfo) -> tuple[str, str] | None:
@@ -358,7 +385,17 @@ class SelectorNode(Node):
                 q_pred, _ = self.motion.predict_coordinates(
                     q_prev, qdot_prev, (stamp - stamp_prev) * 1e-9
                 )
-                assignment = self.selector.assign(q_prev, q_pred, alive)
+                # extrapolated hinges may pass their ranges; absurd rates fly the body away
+                problem = pose_problem(self.body, q_pred, self.volume, limits=False)
+                if problem:
+                    self.health.note(
+                        'absurd_prediction',
+                        f'frame {stamp}: the predicted pose is absurd ({problem}): '
+                        'every live camera assigned to every part',
+                    )
+                    assignment = Assignment.all_cameras(list(self.names), alive, len(PART_NAMES))
+                else:
+                    assignment = self.selector.assign(q_prev, q_pred, alive)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             self.health.drop('selection_failed', f'frame {stamp}: {exc}')
             return

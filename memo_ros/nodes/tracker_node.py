@@ -27,11 +27,16 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
     silhouette_from_contours,
 )
-from memo_ros.core.multiview.motion import ProcessNoise, coordinates_from_names
+from memo_ros.core.multiview.motion import (
+    ProcessNoise,
+    coordinates_from_names,
+    named_values_problem,
+)
 from memo_ros.core.multiview.tracking import (
     LOST,
     TRACKING,
@@ -47,7 +52,7 @@ from memo_ros.ros.body_messages import (
     processed_message,
     root_pose_message,
 )
-from memo_ros.ros.health import NodeHealth
+from memo_ros.ros.health import INTERNAL_ERROR, NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare
@@ -285,15 +290,27 @@ class TrackerNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('tracker_node', **kwargs)
-        self.params = declare(self, PARAMS, on_change=self._on_parameters_set)
+        self.params = declare(
+            self,
+            PARAMS,
+            on_change=lambda: self.health.guard(self._on_parameters_set, 'parameter change')(),
+        )
         self.studio = studio_from_node(self)
         self.body = self.studio.body
         self.camera_names = self.studio.camera_names
+        self.volume = studio_volume(self.studio.cameras)
         initial = None
         if self.studio.initial_pose and self.params['use_initial_pose']:
             initial = coordinates_from_names(
                 self.body, list(self.studio.initial_pose), list(self.studio.initial_pose.values())
             )
+            problem = pose_problem(self.body, initial, self.volume)
+            if problem:
+                initial = None
+                self.get_logger().error(
+                    f"the studio's initial_pose is refused: {problem}; "
+                    'starting from the silhouettes instead'
+                )
         self.tracker = ArticulatedTracker(
             self.body, self.studio.cameras, tracker_settings(self.params), initial
         )
@@ -321,20 +338,35 @@ class TrackerNode(Node):
         )
         for cam in self.camera_names:
             self.create_subscription(
-                PointCloud2, f'/{cam}/contours', self._contour_callback(cam), reliable
+                PointCloud2,
+                f'/{cam}/contours',
+                self.health.guard(self._contour_callback(cam), f'{cam}/contours callback'),
+                reliable,
             )
         self.create_subscription(
-            DiagnosticArray, '/memo/camera_assignment', self._on_assignment, reliable
+            DiagnosticArray,
+            '/memo/camera_assignment',
+            self.health.guard(self._on_assignment, 'camera_assignment callback'),
+            reliable,
         )
-        # the tracker itself is touched only by the tracking thread: set_pose, reset and parameters queue commands
-        self.create_subscription(JointState, '~/set_pose', self._on_set_pose, reliable)
+        # the tracker itself is touched only by the tracking thread: set_pose, reset and parameters
+        # queue commands
+        self.create_subscription(
+            JointState,
+            '~/set_pose',
+            self.health.guard(self._on_set_pose, 'set_pose callback'),
+            reliable,
+        )
         self.pub_joints = self.create_publisher(JointState, '/memo/joint_states', 10)
         self.pub_poses = self.create_publisher(PoseArray, '/memo/body_poses', 10)
         self.pub_markers = self.create_publisher(MarkerArray, '/memo/markers', 10)
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, 100)
-        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_service(
+            Trigger, '~/reset', self.health.guard(self._on_reset, 'reset service', service=True)
+        )
         self.health.set('tracking_state', self.tracker.status)
+        self.health.set('initial_pose', 'studio' if initial is not None else 'silhouettes')
         self.get_logger().info(
             f'tracking with cameras {", ".join(self.camera_names)}; '
             f'initial pose: {"studio" if initial is not None else "from the silhouettes"}'
@@ -382,16 +414,28 @@ class TrackerNode(Node):
 
     def _on_set_pose(self, msg: JointState) -> None:
         names, positions = list(msg.name), list(msg.position)
+        problem = named_values_problem(names, positions)
+        if problem:
+            self.health.drop('bad_set_pose', f'set_pose refused: {problem}')
+            return
         self._command(lambda: self._set_pose(names, positions))
 
     def _set_pose(self, names: list[str], positions: list[float]) -> None:
-        """set_pose on the tracking thread: coordinates not named keep the current estimate's values."""
+        """Set the pose on the tracking thread: coordinates not named keep the estimate's values.
+
+        Unknown names are refused as bad_set_pose, a pose no person in the studio can take
+        (:func:`pose_problem`) as absurd_set_pose; the filter then stays as it was.
+        """
         try:
             base = self.tracker.ekf.q if self.tracker.status == TRACKING else None
             q = coordinates_from_names(self.body, names, positions, base)
-            self.tracker.set_pose(q)
-        except (KeyError, ValueError) as exc:
+        except KeyError as exc:
             self.health.drop('bad_set_pose', f'set_pose refused: {exc}')
+            return
+        try:
+            self.tracker.set_pose(q)
+        except ValueError as exc:
+            self.health.drop('absurd_set_pose', f'set_pose refused: {exc}')
             return
         self.health.note('set_pose', 'pose set: the next frame starts from it')
 
@@ -579,8 +623,11 @@ class TrackerNode(Node):
 
     # ------------------------------------------------------------ tracking (its own thread)
     def _work(self) -> None:
-        """The tracking thread: woken by the intake, and every EXPIRY_CHECK_S for joins whose wait expired.
-        An error here ends the node (spin is shut down, the process exits non-zero), as it would in a callback.
+        """Run the tracking thread: woken by the intake, and every EXPIRY_CHECK_S for late joins.
+
+        An error in a frame or a command is counted (internal_error) and the node goes on; one
+        elsewhere ends the node (spin is shut down, the process exits 1), except while the node
+        shuts down, when a publish into the invalidated context is expected and swallowed.
         """
         try:
             while True:
@@ -591,6 +638,9 @@ class TrackerNode(Node):
                     self.woken = False
                 self._tick()
         except Exception as exc:  # noqa: BLE001 - reported, then the node stops
+            if self._shutting_down():
+                self.get_logger().debug(f'tracking thread stopped at shutdown: {exc!r}')
+                return
             self.failure = exc
             self.get_logger().fatal(f'tracking thread failed: {exc!r}\n{traceback.format_exc()}')
             self.context.try_shutdown()
@@ -601,14 +651,30 @@ class TrackerNode(Node):
             with self.lock:
                 commands, self.commands = self.commands, []
             for command in commands:
-                command()
+                try:
+                    command()
+                except Exception as exc:  # noqa: BLE001 - counted, the node goes on
+                    if self._shutting_down():
+                        raise
+                    self.health.internal_error('a tracker command', exc)
             with self.lock:
                 job = self._next_frame()
             if job is None:
                 return
             stamp, frame, missing = job
-            outcome = self._track(stamp, frame, missing)
+            try:
+                outcome = self._track(stamp, frame, missing)
+            except Exception as exc:  # noqa: BLE001 - counted, the node goes on
+                if self._shutting_down():
+                    raise
+                self.health.internal_error('tracking a frame', exc)
+                self.tracker.reset(use_initial_pose=False)  # its state may be half updated
+                outcome = INTERNAL_ERROR
             self.pub_processed.publish(processed_message(stamp, outcome))
+
+    def _shutting_down(self) -> bool:
+        """Whether the node is being destroyed or its context shut down (publishing may fail)."""
+        return self.stopping or not self.context.ok()
 
     def _track(self, stamp: int, frame: PendingFrame, missing: list[str]) -> str:
         self.health.count('frames')

@@ -237,7 +237,10 @@ class WalkerNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('walker_node', **kwargs)
         self.params = declare(
-            self, PARAMS, on_change=self._on_parameters_set, check=check_parameters
+            self,
+            PARAMS,
+            on_change=lambda: self.health.guard(self._on_parameters_set, 'parameter change')(),
+            check=check_parameters,
         )
         self.studio = studio_from_node(self)
         name = self.params['camera'] or (
@@ -265,13 +268,23 @@ class WalkerNode(Node):
         self.create_subscription(
             CameraInfo,
             f'/{name}/camera_info',
-            self._on_camera_info,
+            self.health.guard(self._on_camera_info, 'camera_info callback'),
             QoSProfile(
                 reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=10
             ),
         )
-        self.create_subscription(PointCloud2, f'/{name}/edges', self._on_edges, reliable)
-        self.create_subscription(PolygonStamped, f'/{name}/person_box', self._on_box, reliable)
+        self.create_subscription(
+            PointCloud2,
+            f'/{name}/edges',
+            self.health.guard(self._on_edges, 'edges callback'),
+            reliable,
+        )
+        self.create_subscription(
+            PolygonStamped,
+            f'/{name}/person_box',
+            self.health.guard(self._on_box, 'person_box callback'),
+            reliable,
+        )
         self.pub_joints = self.create_publisher(JointState, '/memo/joint_states', OUTPUT_DEPTH)
         self.pub_poses = self.create_publisher(PoseArray, '/memo/body_poses', OUTPUT_DEPTH)
         self.pub_markers = self.create_publisher(MarkerArray, '/memo/markers', OUTPUT_DEPTH)

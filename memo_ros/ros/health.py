@@ -1,18 +1,25 @@
 """Per-node bookkeeping of frames in, processed and dropped (with reasons), published on /diagnostics.
 
 Every frame a node does not process is counted under a reason and logged with
-a throttled one-line warning, so nothing is dropped silently.
+a throttled one-line warning, so nothing is dropped silently.  An unexpected
+exception in a callback is caught at the node's edge (:meth:`NodeHealth.guard`),
+counted as ``internal_error`` with its first traceback logged, and the node goes on.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 import threading
+import traceback
+from typing import Callable
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
 LOG_THROTTLE_S = 2.0
+INTERNAL_ERROR = (
+    'internal_error'  # the reason an unexpected exception in a callback is counted under
+)
 
 
 class NodeHealth:
@@ -30,8 +37,9 @@ class NodeHealth:
         self._problem = ''
         self._level = DiagnosticStatus.OK
         self._lock = threading.Lock()
+        self._failed: set[str] = set()  # callbacks whose traceback was logged
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._timer = node.create_timer(period, self.publish)
+        self._timer = node.create_timer(period, self.guard(self.publish, 'diagnostics timer'))
 
     def count(self, key: str, n: int = 1) -> None:
         """Add ``n`` to counter ``key`` (frames_in, processed, ...)."""
@@ -55,6 +63,39 @@ class NodeHealth:
             self.counters[reason] += 1
             self._problem = f'{reason}: {message}'
         self._node.get_logger().info(message, throttle_duration_sec=LOG_THROTTLE_S)
+
+    def internal_error(self, what: str, exc: BaseException) -> None:
+        """Count an exception of ``what`` as internal_error; log its first traceback in full."""
+        with self._lock:
+            first = what not in self._failed
+            self._failed.add(what)
+        if first:
+            trace = ''.join(traceback.format_exception(exc)).rstrip()
+            self._node.get_logger().error(f'{what} failed (the node goes on): {exc!r}\n{trace}')
+        self.drop(INTERNAL_ERROR, f'{what} failed: {exc!r}')
+
+    def guard(self, callback: Callable, what: str, service: bool = False) -> Callable:
+        """Wrap a subscription, service or timer callback: an exception is counted, never raised.
+
+        A ``service`` callback's response (its second argument) is returned, with success false
+        and the error as its message when it has those fields.
+        """
+
+        def guarded(*args):
+            try:
+                return callback(*args)
+            except Exception as exc:  # noqa: BLE001 - the node's edge: nothing raises out of it
+                self.internal_error(what, exc)
+                if service:
+                    response = args[1]
+                    if hasattr(response, 'success'):
+                        response.success = False
+                    if hasattr(response, 'message'):
+                        response.message = f'internal error: {exc!r}'
+                    return response
+                return None
+
+        return guarded
 
     def ok(self) -> None:
         """A frame went through: clear the warning level (the last problem stays in the values)."""

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 from typing import Callable
 
 import cv2
@@ -10,30 +12,57 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SPIN_PERIOD_S = 0.1  # how soon a stop signal is noticed: the executor's longest wait
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
-    """Spin the node ``make_node`` builds until Ctrl-C or shutdown; exit 2 with one line if it refuses to start,
-    1 if a thread of its own failed (it sets ``failure`` and shuts the context down).
+    """Spin the node ``make_node`` builds until SIGINT, SIGTERM or shutdown; return the exit code.
 
-    One executor thread per node: rclpy's multi-threaded executor left ready callbacks waiting for up to
-    seconds on these 2-core machines; a node that must not block its intake runs its work on its own thread.
+    0 after a stop signal or shutdown; 2 with one line if the node refuses to start; 1 if a
+    thread of its own failed (it sets ``failure`` and shuts the context down).  A stop signal
+    only sets a flag (rclpy's handlers would invalidate the context under a thread still
+    publishing, and a second Ctrl-C would raise KeyboardInterrupt anywhere): spinning stops
+    within SPIN_PERIOD_S, the node is destroyed (its own threads finish) while further
+    signals are merely noted, then rclpy shuts down.
+
+    One executor thread per node: rclpy's multi-threaded executor left ready callbacks waiting
+    for up to seconds on these 2-core machines; a node that must not block its intake runs its
+    work on its own thread.
     """
+    stop = threading.Event()
+    for sig in STOP_SIGNALS:  # a signal never raises, not even in the node's shutdown
+        signal.signal(sig, lambda signum, frame: stop.set())
     cv2.setNumThreads(1)  # one process per camera and stage share the cores (see memo_ros.nodes)
-    rclpy.init(args=args if args is not None else sys.argv)
+    rclpy.init(
+        args=args if args is not None else sys.argv,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
     try:
         node = make_node()
     except (ValueError, KeyError, ParameterException) as exc:
         print(f'{name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        rclpy.spin(node, SingleThreadedExecutor())
-    except (KeyboardInterrupt, ExternalShutdownException):
+        while not stop.is_set() and node.context.ok():
+            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+    except ExternalShutdownException:
         pass
     finally:
+        if stop.is_set():
+            node.get_logger().info('stopping on a signal')
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        # ignored from here on: Python's finalisation would restore the default actions, and a
+        # late signal (ros2 launch's second Ctrl-C) would kill the exiting process
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
     failure = getattr(node, 'failure', None)
     if failure is not None:
         print(

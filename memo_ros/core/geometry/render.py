@@ -17,6 +17,8 @@ from memo_ros.core.geometry.camera import Camera
 
 BACKGROUND = 0  # label of pixels that see no part; part i has label i + 1
 NEAR = 1e-6
+MAX_COORDINATE_M = 1e4  # a part farther from the world origin (an absurd pose) is not rendered
+MAX_PIXELS = 1e7  # projected corners are clipped to this many pixels before becoming box bounds
 
 
 @dataclass
@@ -88,6 +90,8 @@ def render(
 
 def _projected_box(view: Camera, rotation, origin, axes, length, margin: int = 2):
     """Pixel bounds (u0, u1, v0, v1) of a part's projection, whole image if it reaches behind the camera."""
+    if not _sane_parts(rotation[None], origin[None])[0]:
+        return None
     a, b = axes
     corners = np.array([[x, y, z] for x in (-a, a) for y in (-b, b) for z in (0.0, length)])
     world = origin + corners @ rotation.T
@@ -217,10 +221,13 @@ def _projected_boxes(
     signs = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 1.0)])
     scale = np.concatenate([semi_axes, lengths[:, None]], axis=1)  # (P, 3)
     corners = signs[None] * scale[:, None]  # (P, 8, 3)
-    uv = view.project(origins[:, None] + np.einsum('pij,pcj->pci', rotations, corners))
+    sane = _sane_parts(rotations, origins)
+    world = origins[:, None] + np.einsum('pij,pcj->pci', rotations, corners)
+    uv = view.project(np.where(sane[:, None, None], world, 0.0))
     finite = np.all(np.isfinite(uv), axis=(1, 2))
-    with np.errstate(invalid='ignore'):
-        lo, hi = np.nan_to_num(uv.min(axis=1)), np.nan_to_num(uv.max(axis=1))
+    with np.errstate(invalid='ignore'):  # pixels clipped before they become integers
+        lo = np.clip(np.nan_to_num(uv.min(axis=1)), -MAX_PIXELS, MAX_PIXELS)
+        hi = np.clip(np.nan_to_num(uv.max(axis=1)), -MAX_PIXELS, MAX_PIXELS)
     u0 = np.where(finite, np.maximum(np.floor(lo[:, 0]).astype(int) - margin, 0), 0)
     u1 = np.where(
         finite, np.minimum(np.ceil(hi[:, 0]).astype(int) + margin + 1, view.width), view.width
@@ -229,7 +236,18 @@ def _projected_boxes(
     v1 = np.where(
         finite, np.minimum(np.ceil(hi[:, 1]).astype(int) + margin + 1, view.height), view.height
     )
+    u1 = np.where(sane, u1, 0)  # a part posed absurdly is not cast at all
     return u0, u1, v0, v1
+
+
+def _sane_parts(rotations: np.ndarray, origins: np.ndarray) -> np.ndarray:
+    """Return which parts (P,) are posed finitely within MAX_COORDINATE_M of the world origin."""
+    with np.errstate(invalid='ignore'):
+        return (
+            np.all(np.isfinite(rotations), axis=(1, 2))
+            & np.all(np.isfinite(origins), axis=1)
+            & np.all(np.abs(origins) <= MAX_COORDINATE_M, axis=1)
+        )
 
 
 def render_body(

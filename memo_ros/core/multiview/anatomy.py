@@ -11,9 +11,12 @@ twin so that the tracker can keep it as a competing hypothesis.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from memo_ros.core.geometry.body import JOINT_TREE, ROOT_COORDINATES, Body
+from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z, rotvec_to_matrix
 
 # anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend)
@@ -155,3 +158,88 @@ def facing(body: Body, q: np.ndarray) -> np.ndarray:
     rotations, _ = body.forward_kinematics(q)
     forward = rotations[..., 0, :, 0]
     return np.arctan2(forward[..., 1], forward[..., 0])
+
+
+def studio_volume(
+    cameras: Sequence[Camera],
+    depth: float = 20.0,
+    margin: float = 2.0,
+    z_range: tuple[float, float] = (-1.0, 4.0),
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Return the box (low, high) in which a body's root can be: None without cameras.
+
+    Horizontally, the bounding box of the cameras' centres and of what their
+    image corners and centres see up to ``depth`` metres away, grown by
+    ``margin`` metres; vertically ``z_range`` (world z up, the floor at 0).
+    """
+    points: list[np.ndarray] = []
+    for camera in cameras:
+        w, h = camera.width - 1.0, camera.height - 1.0
+        u = np.array([0.0, w, 0.0, w, 0.5 * w])
+        v = np.array([0.0, 0.0, h, h, 0.5 * h])
+        with np.errstate(all='ignore'):
+            seen = camera.centre + depth * camera.pixel_rays(u, v)
+        points += [camera.centre[None], seen[np.all(np.isfinite(seen), axis=1)]]
+    if not points:
+        return None
+    xy = np.concatenate(points)[:, :2]
+    low = np.append(xy.min(axis=0) - margin, z_range[0])
+    high = np.append(xy.max(axis=0) + margin, z_range[1])
+    return low, high
+
+
+def pose_problem(
+    body: Body,
+    q: np.ndarray,
+    volume: tuple[np.ndarray, np.ndarray] | None,
+    limit_tolerance: float = 0.1,
+    limits: bool = True,
+) -> str | None:
+    """Return why ``q`` is no pose of a person in the studio (one line), or None when it is one.
+
+    The root must lie inside ``volume`` (:func:`studio_volume`; None: anywhere),
+    every hinge with an anatomical range (JOINT_LIMITS) within it up to
+    ``limit_tolerance`` rad (not checked with ``limits`` false, e.g. for an
+    extrapolated pose), every other angle within 2 pi of zero and every
+    rotation vector (the root's and the ball joints') no longer than 2 pi.
+    """
+    names = body.coordinate_names
+    try:
+        q = np.asarray(q, float)
+    except (TypeError, ValueError):
+        return 'the coordinates are not numbers'
+    if q.shape != (len(names),):
+        return f'a pose needs {len(names)} coordinates, got shape {q.shape}'
+    bad = [n for n, value in zip(names, q) if not np.isfinite(value)]
+    if bad:
+        return f'not finite: {", ".join(bad[:4])}{" ..." if len(bad) > 4 else ""}'
+    if volume is not None:
+        low, high = (np.asarray(b, float) for b in volume)
+        root = q[:3]
+        if np.any(root < low) or np.any(root > high):
+            box = ', '.join(
+                f'{axis} [{lo:.1f}, {hi:.1f}]' for axis, lo, hi in zip('xyz', low, high)
+            )
+            return (
+                f'the root at ({root[0]:.4g}, {root[1]:.4g}, {root[2]:.4g}) m is outside the '
+                f'studio volume ({box} m)'
+            )
+    if limits:
+        for name, (lo, hi) in JOINT_LIMITS.items():
+            if name in names:
+                value = q[names.index(name)]
+                if value < lo - limit_tolerance or value > hi + limit_tolerance:
+                    return f'{name} = {value:.4g} rad is outside its range [{lo:g}, {hi:g}] rad'
+    groups = [('root', names.index('root_rx'))] + [
+        (j.name, names.index(f'{j.name}_x')) for j in body.joints if j.axes == 'ball'
+    ]
+    in_groups: set[int] = set()
+    for joint, start in groups:
+        in_groups.update(range(start, start + 3))
+        angle = float(np.linalg.norm(q[start : start + 3]))
+        if angle > 2 * np.pi:
+            return f'the rotation vector of {joint} is {angle:.4g} rad long (more than 2 pi)'
+    for k, name in enumerate(names):
+        if k >= len(ROOT_COORDINATES) and k not in in_groups and abs(q[k]) > 2 * np.pi:
+            return f'{name} = {q[k]:.4g} rad is more than 2 pi from zero'
+    return None

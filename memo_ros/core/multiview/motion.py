@@ -13,6 +13,8 @@ frame t from the published posterior exactly as the tracker does.
 
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,6 +138,18 @@ class ConstantVelocity:
         q[i, i + self.n] = q[i + self.n, i] = s2 * dt**2 / 2.0
         q[i + self.n, i + self.n] = s2 * dt
         return q
+
+
+def named_values_problem(names: Sequence[str], values: Sequence[float] | np.ndarray) -> str | None:
+    """Return why (name, value) pairs do not give each named coordinate one value, or None."""
+    if not names:
+        return 'no names (an empty message)'
+    if len(values) != len(names):
+        return f'{len(names)} names but {len(values)} positions'
+    twice = sorted(n for n, count in Counter(names).items() if count > 1)
+    if twice:
+        return f'named more than once: {", ".join(twice[:5])}'
+    return None
 
 
 def coordinates_from_names(
