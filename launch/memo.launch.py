@@ -1,11 +1,12 @@
 """The memo_ros graph on a ROS 2 Jazzy install: one contour_node per camera of a studio.
 
-    ros2 launch memo_ros memo.launch.py studio:=/path/to/studio.yaml [reliable_images:=true] [role:=cameras]
+ros2 launch memo_ros memo.launch.py studio:=/path/to/studio.yaml [reliable_images:=true]
+[role:=cameras]
 
-``studio`` is a path or the name of a shipped studio (studio_orthogonal, street);
-every node gets it as its params file, as ``memo-ros launch`` does without ROS.
-``role`` splits the graph over hosts: cameras (the contour nodes), tracking (the
-selector and the tracker, or the walker), all (default).
+``studio`` is a path or the name of a shipped studio (studio_orthogonal, street); every node gets
+it as its params file, as ``memo-ros launch`` does without ROS. ``role`` splits the graph over
+hosts: cameras (the contour nodes), tracking (the selector and the tracker, or the walker), all
+(default).
 """
 
 from launch.actions import DeclareLaunchArgument, OpaqueFunction

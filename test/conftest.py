@@ -15,7 +15,7 @@ _serial = itertools.count()
 
 
 def next_domain_id() -> int:
-    """A ROS_DOMAIN_ID in 1..100, different for each test of a run and offset by the pid across runs."""
+    """Return a ROS_DOMAIN_ID in 1..100, different for each test of a run and offset by the pid across runs."""
     return 1 + (os.getpid() + next(_serial)) % 100
 
 
@@ -85,7 +85,7 @@ class RosEnv(dict):
 
 @pytest.fixture
 def ros_env(monkeypatch) -> RosEnv:
-    """A fresh DDS domain on localhost, for this process (in-test nodes) and for subprocesses."""
+    """Return a fresh DDS domain on localhost, for this process (in-test nodes) and for subprocesses."""
     env = RosEnv(next_domain_id())
     monkeypatch.setenv('ROS_DOMAIN_ID', str(env.domain_id))
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

@@ -20,7 +20,7 @@ H, W = 120, 160
 
 
 def scene(seed: int = 0) -> np.ndarray:
-    """A textured colour background (smooth gradients plus fixed texture), uint8 (H, W, 3)."""
+    """Return a textured colour background (smooth gradients plus fixed texture), uint8 (H, W, 3)."""
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:H, 0:W]
     base = np.stack([60 + 0.8 * x, 90 + 0.6 * y, 150 - 0.4 * x + 0.3 * y], axis=-1)
@@ -29,7 +29,7 @@ def scene(seed: int = 0) -> np.ndarray:
 
 
 def person_mask(cx: float, cy: float, sway: float) -> np.ndarray:
-    """A person-like blob: an ellipse (trunk) with a swinging 'arm'."""
+    """Return a person-like blob: an ellipse (trunk) with a swinging 'arm'."""
     mask = np.zeros((H, W), np.uint8)
     cv2.ellipse(mask, (int(cx), int(cy)), (9, 26), 0, 0, 360, 1, -1)
     cv2.line(
@@ -125,7 +125,8 @@ def test_a_person_standing_still_is_learnt_unless_his_tracked_place_is_excluded(
 
 
 def test_the_ring_around_a_restless_person_is_learnt_from_the_frames_outside_his_tracked_body():
-    # he moves in every frame, so the motion patches and his grown masks cover a ring around him in nearly
+    # he moves in every frame, so the motion patches and his grown masks cover a ring around him in
+    # nearly
     # every frame; the tracked body alone leaves it seen, and its median there is the background
     bg = scene()
     rng = np.random.default_rng(5)

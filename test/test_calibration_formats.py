@@ -121,9 +121,10 @@ def test_formats_without_rational_model_refuse_it(tmp_path, fmt):
         write_calibration(rig(rational=True), target(tmp_path, fmt), fmt)
 
 
-# ---------------------------------------------------------------- the real Qualisys file, read by the README's recipe
+# ---------------------------------------------------------------- the real Qualisys file, read by
+# the README's recipe
 def pose2sim_reading(path: Path) -> list[dict]:
-    """The README's recipe, written out independently: size, K, D (k1 k2 p1 p2), world-to-camera rvec, tvec."""
+    """Return the README's recipe, written out independently: size, K, D (k1 k2 p1 p2), world-to-camera rvec, tvec."""
     cams = []
     for cam in ET.parse(path).getroot().iter('camera'):
         fov, intr, tr = (
@@ -223,10 +224,14 @@ def test_real_qualisys_file_survives_every_format(tmp_path):
             )
 
 
-# ---------------------------------------------------------------- hand-written files in the other tools' layouts
-# A camera 2 m in front of the world origin, looking along world z, image x along world -y (rotated 90 deg about z),
-# f = 1000 px, principal point (640, 360), k1 = -0.1.  World point (0.1, 0.2, 0) -> camera (-0.2, 0.1, 2)
-# -> x, y = (-0.1, 0.05), r2 = 0.0125, radial = 1 - 0.1 r2 = 0.99875 -> u = 640 - 99.875, v = 360 + 49.9375.
+# ---------------------------------------------------------------- hand-written files in the other
+# tools' layouts
+# A camera 2 m in front of the world origin, looking along world z, image x along world -y (rotated
+# 90 deg about z),
+# f = 1000 px, principal point (640, 360), k1 = -0.1.  World point (0.1, 0.2, 0) -> camera (-0.2,
+# 0.1, 2)
+# -> x, y = (-0.1, 0.05), r2 = 0.0125, radial = 1 - 0.1 r2 = 0.99875 -> u = 640 - 99.875, v = 360 +
+# 49.9375.
 WORLD_POINT = np.array([0.1, 0.2, 0.0])
 EXPECTED_UV = np.array([540.125, 409.9375])
 QUARTER_TURN = [0.0, 0.0, float(np.pi / 2)]
@@ -346,7 +351,8 @@ projection_matrix:
 
 def test_ros_camera_calibration_with_poses(tmp_path):
     (tmp_path / 'narrow_stereo.yaml').write_text(ROS_CAMERA)
-    # the optical frame of the camera above: R_world_cam = Rz(90deg)^T, centre (0, 0, -2); q of Rz(-90deg)
+    # the optical frame of the camera above: R_world_cam = Rz(90deg)^T, centre (0, 0, -2); q of
+    # Rz(-90deg)
     s = float(np.sqrt(0.5))
     (tmp_path / 'poses.yaml').write_text(
         f'cameras:\n  narrow_stereo: {{position: [0.0, 0.0, -2.0], orientation: [0.0, 0.0, {-s!r}, {s!r}]}}\n'

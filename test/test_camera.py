@@ -23,7 +23,7 @@ RATIONAL = [0.35, -0.12, 0.0009, -0.0011, 0.02, 0.62, -0.08, 0.03]
 
 
 def make_camera(model='plumb_bob', skew=0.0, D=None) -> Camera:
-    """A 640x480 camera about 4 m from the origin looking at it, slightly rolled."""
+    """Return a 640x480 camera about 4 m from the origin looking at it, slightly rolled."""
     if D is None:
         D = {'plumb_bob': PLUMB_BOB, 'rational_polynomial': RATIONAL, 'none': []}[model]
     cam = Camera.look_at(

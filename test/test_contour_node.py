@@ -118,7 +118,8 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
                             values.update({kv.key: kv.value for kv in status.values})
             assert set(keys) <= set(values), values
 
-        # before any camera_info the image is processed all the same (repeated until the subscription matched;
+        # before any camera_info the image is processed all the same (repeated until the
+        # subscription matched;
         # the repeats share a stamp and are dropped as duplicates)
         spin_until(
             ['no_camera_info', 'processed'], publish=lambda: image_pub.publish(image(sec=1))
@@ -235,7 +236,8 @@ def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_backgroun
     assert int(values['dropped.image_lost']) == 2, values
     assert int(values['processed']) == 6 and int(values['warming_up']) == 3, values
     assert len(pointcloud_to_array(contours[-1])) > 20
-    # restarted with the person in view: the saved background is used, no learning, contours at once
+    # restarted with the person in view: the saved background is used, no learning, contours at
+    # once
     values, contours = run_node([person, person], 20)
     assert 'warming_up' not in values, values
     assert len(contours) == 2 and all(len(pointcloud_to_array(c)) > 20 for c in contours)
@@ -264,8 +266,10 @@ def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_e
 def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_it(
     ros_env, tmp_path
 ):
-    # bag replay: whether the tracker's /memo/markers of frame t reach the node before the images of frame
-    # t + 1 must not decide the tracked region; with roi_wait the image waits for them (at most roi_wait)
+    # bag replay: whether the tracker's /memo/markers of frame t reach the node before the images
+    # of frame
+    # t + 1 must not decide the tracked region; with roi_wait the image waits for them (at most
+    # roi_wait)
     from visualization_msgs.msg import MarkerArray
 
     from memo_ros.core.formats.studio import Studio

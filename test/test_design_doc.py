@@ -14,7 +14,8 @@ PAPERS = {
     'Kakadiaris & Metaxas': '001_923bd046e6d0da67.txt',
     'Rohr': '000_b4bbd61a7f20583e.txt',
 }
-# an equation number: \tag{N}, '\quad (N)' or '\qquad (N)' closing a formula, or '(N)' on a line alone
+# an equation number: \tag{N}, '\quad (N)' or '\qquad (N)' closing a formula, or '(N)' on a line
+# alone
 NUMBERED = re.compile(r'\\tag\{(\d+)\}|\\q?quad \((\d+)\)|^\s*\((\d+)\)\s*$', re.MULTILINE)
 ROW = re.compile(r'^\| (\d+) \| [^|]+ \| (.+) \|$', re.MULTILINE)
 

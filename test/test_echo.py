@@ -46,7 +46,8 @@ def contour_cloud() -> PointCloud2:
     return array_to_pointcloud(contour_table(), header)
 
 
-# ----------------------------------------------------------------------------- point clouds without DDS
+# ----------------------------------------------------------------------------- point clouds
+# without DDS
 
 
 def test_dtype_covers_every_pointfield_type_with_padding_and_counts():
@@ -131,7 +132,8 @@ def test_big_endian_organized_cloud_with_row_padding():
     assert np.array_equal(pointcloud_to_array(written)['z'], read['z'], equal_nan=True)
 
 
-# ----------------------------------------------------------------------------- YAML and CSV without DDS
+# ----------------------------------------------------------------------------- YAML and CSV
+# without DDS
 
 
 def test_yaml_is_valid_and_matches_the_fields():
@@ -167,7 +169,7 @@ def test_flatten_names_leaves():
 
 @pytest.fixture
 def publishing(ros_env):
-    """An in-test node publishing a JointState and a contour cloud at 10 Hz."""
+    """Return an in-test node publishing a JointState and a contour cloud at 10 Hz."""
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=ros_env.domain_id)
     node = rclpy.create_node('echo_test_publisher', context=context)

@@ -19,7 +19,8 @@ from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
-# what the `memo-ros` entry point runs (`-m memo_ros.tools.cli` loads cli.py twice, splitting CliError)
+# what the `memo-ros` entry point runs (`-m memo_ros.tools.cli` loads cli.py twice, splitting
+# CliError)
 CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
 SUMMARY_KEYS = (
     'frames',
@@ -50,7 +51,7 @@ def memo_ros_cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def evaluate_json(truth: Path, estimate: Path, *extra: str) -> dict:
-    """The --json summary of evaluating ``estimate`` against ``truth``."""
+    """Return the --json summary of evaluating ``estimate`` against ``truth``."""
     done = memo_ros_cli('evaluate', '--truth', truth, '--estimate', estimate, '--json', *extra)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
@@ -59,7 +60,7 @@ def evaluate_json(truth: Path, estimate: Path, *extra: str) -> dict:
 def write_estimate(
     path: Path, track, origin_offset=np.zeros(3), local_rotation=np.eye(3), phase=None
 ) -> Path:
-    """An estimate bag (/memo/body_poses, /memo/joint_states) from a truth track, every part moved alike."""
+    """Return an estimate bag (/memo/body_poses, /memo/joint_states) from a truth track, every part moved alike."""
     with BagWriter(path) as writer:
         for stamp in sorted(track.origins):
             rotations = track.rotations[stamp] @ local_rotation
@@ -83,7 +84,7 @@ def write_estimate(
 
 @pytest.fixture(scope='module')
 def arm(tmp_path_factory):
-    """A 6-frame studio-arm truth bag at 160x120 and its truth track."""
+    """Return a 6-frame studio-arm truth bag at 160x120 and its truth track."""
     out = tmp_path_factory.mktemp('arm') / 'truth'
     result = simulate('studio-arm', out, frames=6, width=160, height=120)
     return result, load_track(result.bag, TRUTH_TOPICS)
@@ -91,7 +92,7 @@ def arm(tmp_path_factory):
 
 @pytest.fixture(scope='module')
 def walk(tmp_path_factory):
-    """A 30-frame street-walk truth bag (the gait phase wraps once) and its truth track."""
+    """Return a 30-frame street-walk truth bag (the gait phase wraps once) and its truth track."""
     out = tmp_path_factory.mktemp('walk') / 'truth'
     result = simulate(
         'street-walk', out, frames=30, width=160, height=120, options=ImagingOptions(noise=0.0)

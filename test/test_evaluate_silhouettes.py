@@ -36,14 +36,14 @@ def memo_ros_cli(*args) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope='module')
 def arm(tmp_path_factory):
-    """A studio-arm bag (10 empty frames, then 8 with the subject) at 320x240, and its truth track."""
+    """Return a studio-arm bag (10 empty frames, then 8 with the subject) at 320x240, and its truth track."""
     out = tmp_path_factory.mktemp('arm') / 'rec'
     result = simulate('studio-arm', out, frames=8, width=320, height=240)
     return result, load_track(result.bag, TRUTH_TOPICS)
 
 
 def write_estimate(path: Path, track, offset=np.zeros(3), outcomes=None) -> Path:
-    """An estimate bag: the truth's poses moved by ``offset`` and each frame's /memo/processed outcome."""
+    """Return an estimate bag: the truth's poses moved by ``offset`` and each frame's /memo/processed outcome."""
     stamps = sorted(track.origins)
     outcomes = outcomes or ['tracking'] * len(stamps)
     with BagWriter(path) as writer:
@@ -78,7 +78,8 @@ def test_the_true_poses_cover_the_segmented_person_and_a_shift_does_not(arm, tmp
     for camera in result.cameras:
         row = exact['cameras'][camera]
         assert row['frames'] == 8
-        # the simulator's picture of the same cylinders, segmented by the studio's background segmenter
+        # the simulator's picture of the same cylinders, segmented by the studio's background
+        # segmenter
         assert row['mean'] > 0.85 and row['min'] > 0.8, (camera, row)
         assert shifted['cameras'][camera]['mean'] < row['mean'] - 0.1, camera
     assert exact['iou_mean_min_camera'] == pytest.approx(

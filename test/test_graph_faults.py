@@ -162,7 +162,7 @@ def _play_with_faults(ros_env, arm, tmp_path: Path, faults: dict[int, list]) -> 
 
 
 def _frame_stamps(bag: Path) -> list[int]:
-    """The bag's frame stamps (cam_front's camera_info): frame k of the faults and of the figures."""
+    """Return the bag's frame stamps (cam_front's camera_info): frame k of the faults and of the figures."""
     return sorted(
         stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_front/camera_info'])
     )
@@ -212,7 +212,8 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
         f'{"".join("-" if f is None else "1" if f else "0" for f in flags)}'
     )
     print('per frame MPJPE:', ' '.join(f'{k}:{e:.0f}' for k, e in zip(frames, mpjpe)))
-    # the contour_node: gone from the assignment within the timeouts, tracked around, back after its restart
+    # the contour_node: gone from the assignment within the timeouts, tracked around, back after
+    # its restart
     outage = [k for k in range(kill_at + DETECTION_FRAMES, restart_at) if flags[k] is not None]
     assert outage and not any(flags[k] for k in outage), 'the assignment must show cam_top gone'
     back = [k for k in range(restart_at, tracker_at) if flags[k]]
@@ -232,7 +233,8 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
         'tracking must go on with the two other cameras'
     )
     assert mpjpe[during].mean() <= 35.0
-    # the tracker: a new process re-initialises and is within 25 mm again after RECOVERY_FRAMES of its output
+    # the tracker: a new process re-initialises and is within 25 mm again after RECOVERY_FRAMES of
+    # its output
     index = {s: k for k, s in enumerate(stamps)}
     new_outputs = {
         index[stamp_to_ns(m.message.header.stamp)]: m.log_time_ns
@@ -255,7 +257,7 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
 
 
 def _with_encoding(bag: Path, out: Path, encoding: str) -> Path:
-    """A copy of ``bag`` whose images claim ``encoding`` (every other message as it was)."""
+    """Return a copy of ``bag`` whose images claim ``encoding`` (every other message as it was)."""
     from rclpy.serialization import serialize_message
     from rosbags.rosbag2 import Writer
 

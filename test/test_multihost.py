@@ -114,7 +114,8 @@ def test_the_graph_split_over_a_camera_host_and_a_tracking_host(hosts, ros_env, 
         for host, role in (('cams', 'cameras'), ('track', 'tracking'))
     ]
     try:
-        # the camera host plays the bag into its contour nodes and records what comes back from the tracking host
+        # the camera host plays the bag into its contour nodes and records what comes back from the
+        # tracking host
         out = tmp_path / 'out'
         replay = subprocess.run(
             on('cams', 'replay', sim.bag, '--no-launch', '--out', out),

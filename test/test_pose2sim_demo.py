@@ -38,7 +38,7 @@ pytestmark = pytest.mark.skipif(
 
 @pytest.fixture(scope='module')
 def demo(tmp_path_factory):
-    """The demo imported at scale 0.25 (bgr8), its studio, and every camera's frames."""
+    """Return the demo imported at scale 0.25 (bgr8), its studio, and every camera's frames."""
     out = tmp_path_factory.mktemp('pose2sim') / 'demo'
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     done = subprocess.run(
@@ -85,7 +85,7 @@ def backgrounds(demo):
 
 
 def pipelines(backgrounds) -> dict[str, ContourPipeline]:
-    """The demo's contour pipelines (scripts/demo_pose2sim.sh's settings), starting from the backgrounds."""
+    """Return the demo's contour pipelines (scripts/demo_pose2sim.sh's settings), starting from the backgrounds."""
     out = {}
     for name, model in backgrounds.items():
         pipeline = ContourPipeline(
@@ -106,7 +106,8 @@ def test_the_four_silhouettes_agree_on_one_standing_person_of_plausible_size(dem
     for mask in masks:  # someone is segmented in every camera, not the whole image
         assert 0.02 < mask.mean() < 0.25
     height, hulls = measure_height([(studio.cameras, masks)])
-    # each camera was segmented on its own: a ghost or a background person in one of them would not survive
+    # each camera was segmented on its own: a ghost or a background person in one of them would not
+    # survive
     # the carving by the three others; what does is one person standing on the treadmill (z = 0)
     assert 1.60 < height < 1.85
     assert -0.15 < hulls[0].bottom < 0.05
@@ -153,9 +154,12 @@ def test_tracking_the_first_frames_overlaps_the_segmented_person(demo, backgroun
             )
             ious[cam.name].append(silhouette_iou(model, results[cam.name].mask))
     means = {c: float(np.mean(v)) for c, v in ious.items()}
-    # measured 2026-11-21 over these 24 frames (the start-up, where the standing posture the track starts
-    # from still has to reach the dancer's): cam01 0.44, cam02 0.53, cam03 0.57, cam04 0.56; over the whole
-    # sequence with the background of all 100 frames 0.64 - 0.72 (README).  A model beside the person, or
+    # measured 2026-11-21 over these 24 frames (the start-up, where the standing posture the track
+    # starts
+    # from still has to reach the dancer's): cam01 0.44, cam02 0.53, cam03 0.57, cam04 0.56; over
+    # the whole
+    # sequence with the background of all 100 frames 0.64 - 0.72 (README).  A model beside the
+    # person, or
     # lost, scores under 0.2.
     assert min(means.values()) > 0.38, means
     assert np.mean(list(means.values())) > 0.48, means

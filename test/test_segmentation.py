@@ -67,7 +67,8 @@ def test_separable_eq1_equals_the_explicit_least_squares_fit():
 def test_design_matrix_and_projection_span():
     X = design_matrix()
     assert X.shape == (25, 6) and np.linalg.matrix_rank(X) == 6
-    # a quadratic difference is reproduced exactly: statistic = rms of the quadratic over the window
+    # a quadratic difference is reproduced exactly: statistic = rms of the quadratic over the
+    # window
     y, x = np.mgrid[0:15, 0:15].astype(float)
     quad = 0.3 * x * x - 0.2 * x * y + 2 * y + 5
     stat = change_statistic(quad.astype(np.float32), np.zeros_like(quad, np.float32))
@@ -212,7 +213,8 @@ def test_street_background_segmenter_learnt_while_the_pedestrian_passes(street):
 def test_change_segmenter_finds_the_pedestrian_not_the_silhouette(street):
     # eq. (1) against the previous frame flags what moved: the pedestrian's moving edges and the
     # background just uncovered, not the uniform inside of the clothes; Rohr uses it for the
-    # enclosing rectangle.  Its silhouette IoU is low by nature (about 0.4 here), reported, not a target.
+    # enclosing rectangle.  Its silhouette IoU is low by nature (about 0.4 here), reported, not a
+    # target.
     noise, cameras = street
     images, truth, _ = cameras['cam_street']
     segmenter = Segmenter(segmenter='change', threshold=12.0, keep='all', min_area=50)

@@ -78,7 +78,8 @@ def test_vi_matches_the_analytic_area_ratio_of_two_overlapping_cylinders(offset,
     semi_axes = np.full((2, 2), r)
     lengths = np.full(2, length)
     vi = visibility_index(render(camera, rotations, origins, semi_axes, lengths, scale=scale), 2)
-    # the front cylinder is taller in the image, so only the widths overlap: VI = 1 - overlap / width
+    # the front cylinder is taller in the image, so only the widths overlap: VI = 1 - overlap /
+    # width
     back = _image_interval(f, 0.0, distance + 0.3, r)
     front = _image_interval(f, offset, distance - 0.3, r)
     overlap = max(0.0, min(back[1], front[1]) - max(back[0], front[0]))
@@ -105,7 +106,8 @@ def test_motion_along_a_cameras_optical_axis_ranks_that_camera_last(camera, norm
             assert chosen[-1] == camera, (PART_NAMES[i], chosen, a.observability[i])
             checked += 1
     assert checked >= 5
-    # with two cameras per part, a camera the part moves straight towards is left out wherever there is a choice
+    # with two cameras per part, a camera the part moves straight towards is left out wherever
+    # there is a choice
     two = CameraSelector(
         BODY,
         CAMERAS,
@@ -135,7 +137,8 @@ def test_spin_about_the_parts_own_axis_cancels_in_the_papers_norm_of_the_sum_not
             BODY, [end_on, CAMERAS[cam('cam_side')]], SelectionSettings(observability_norm=norm)
         )
         figures[norm] = selector.assign(q_prev, q_pred).observability[:, 0]
-    # the hand's rim turns about 1 px per node in the image (the forearm's shows only around the hand) ...
+    # the hand's rim turns about 1 px per node in the image (the forearm's shows only around the
+    # hand) ...
     for name, least in (('hand_r', 20.0), ('forearm_r', 2.0)):
         i = part(name)
         assert figures['sum_of_norms'][i] > least
@@ -198,7 +201,8 @@ def test_camera_timeout_drops_the_camera_and_restores_it_when_it_comes_back():
     assert live.alive(int(2.35 * ns), wall=1.32)['cam_side']
     live.require_contours = False  # a selector without contour nodes: camera_info suffices
     assert live.alive(int(2.35 * ns), wall=5.0)['cam_side']
-    # without any camera_info at all, a camera drops out once the timeout has passed since the first frame
+    # without any camera_info at all, a camera drops out once the timeout has passed since the
+    # first frame
     fresh = CameraLiveness(NAMES, timeout_s=0.3)
     fresh.alive(0, wall=0.0)
     fresh.seen('cam_front', int(0.5 * ns), 'camera_info', wall=0.5)

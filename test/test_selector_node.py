@@ -192,7 +192,8 @@ class Feeder:
 
 
 def test_camera_timeout_drops_a_silent_camera_and_restores_it_when_its_contours_come_back(ros_env):
-    # the selector alone, without contour nodes: camera_info keeps a camera alive (require_contours off)
+    # the selector alone, without contour nodes: camera_info keeps a camera alive (require_contours
+    # off)
     node_process = _start_node(
         ros_env, STUDIO, '-p', 'camera_timeout:=0.3', '-p', 'require_contours:=false'
     )
@@ -214,7 +215,8 @@ def test_camera_timeout_drops_a_silent_camera_and_restores_it_when_its_contours_
     assert node_process.poll() is None
     top = 2
     alive = [bool(assignment_from_message(feed.assignments[s]).alive[top]) for s in stamps]
-    # cam_top's last camera_info is at 10.4 s: alive up to 10.7 s, out at 10.8 and 10.9, back with its contours at 11.0
+    # cam_top's last camera_info is at 10.4 s: alive up to 10.7 s, out at 10.8 and 10.9, back with
+    # its contours at 11.0
     assert alive == [True] * 8 + [False] * 2 + [True] * 3
     for stamp, on in zip(stamps, alive):
         a = assignment_from_message(feed.assignments[stamp])
@@ -307,9 +309,11 @@ def test_studio_arm_bag_the_occluded_arm_is_not_selected_from_the_camera_it_is_h
     sim = simulate(
         'studio-arm', tmp_path / 'arm', frames=frames, width=320, height=240, empty_frames=0
     )
-    # 320x240 images: a label scale of 0.5 gives the 160x120 label images the default 0.25 gives at 640x480
+    # 320x240 images: a label scale of 0.5 gives the 160x120 label images the default 0.25 gives at
+    # 640x480
     # the selector alone on the bag's camera_info, without contour nodes (require_contours off)
-    # the paper's VI criterion (vi_threshold 0.2; the default 0 keeps every camera the part projects into)
+    # the paper's VI criterion (vi_threshold 0.2; the default 0 keeps every camera the part
+    # projects into)
     node_process = _start_node(
         ros_env,
         sim.studio,

@@ -35,7 +35,8 @@ from memo_ros.tools.simulate import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-# what the `memo-ros` entry point runs (`-m memo_ros.tools.cli` loads cli.py twice, splitting CliError)
+# what the `memo-ros` entry point runs (`-m memo_ros.tools.cli` loads cli.py twice, splitting
+# CliError)
 CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
 FRAMES = 4
 WIDTH, HEIGHT = 160, 120
@@ -49,7 +50,7 @@ def grey_images(bag: Path, topic: str) -> list[np.ndarray]:
 
 
 def raw_images(bag: Path, topic: str) -> list[bytes]:
-    """The undecoded pixel bytes of every image of ``topic``."""
+    """Return the undecoded pixel bytes of every image of ``topic``."""
     return [bytes(m.message.data) for m in read_messages(bag, [topic])]
 
 

@@ -50,7 +50,8 @@ def test_two_minutes_at_30_hz_memory_bounded_and_every_frame_accounted_for(ros_e
     outcomes = r['per_frame']['outcome']
     assert None not in outcomes, f'{outcomes.count(None)} frames without an outcome'
     assert sum(r['outcomes'].values()) == r['timed_frames']
-    # every image either reached its contour_node or was counted lost by it (up to the last frame or two,
+    # every image either reached its contour_node or was counted lost by it (up to the last frame
+    # or two,
     # which no later image reveals)
     for cam in report['cameras']:
         node = r['nodes'][f'{cam}/contour_node']

@@ -113,7 +113,8 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
             assignment_to_message(Assignment.all_cameras(cams + ['cam_ghost']), T0 + 8 * DT)
         )
         send(8, T0 + 8 * DT)
-        # a message of a frame already processed is counted; a frame first heard of after newer ones were
+        # a message of a frame already processed is counted; a frame first heard of after newer
+        # ones were
         # processed is dropped as late and still reported on /memo/processed
         pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT))
         pubs['cam_top'].publish(_cloud(tables[2]['cam_top'], T0 + 2 * DT + DT // 2))

@@ -50,7 +50,7 @@ BODY = load_default_body()
 
 
 def _silhouette_contours(cameras, q):
-    """What a perfect contour_node sees: the outer outline of the rendered body, smoothed and sampled."""
+    """Return what a perfect contour_node sees: the outer outline of the rendered body, smoothed and sampled."""
     rotations, origins = BODY.forward_kinematics(q)
     tables = {}
     for cam in cameras:

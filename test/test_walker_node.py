@@ -52,7 +52,7 @@ def _first_box(bag) -> int:
 
 
 def _diagnostics(bag, name: str) -> dict[str, str]:
-    """The last /diagnostics values of the node called ``name``."""
+    """Return the last /diagnostics values of the node called ``name``."""
     values = {}
     for m in read_messages(bag, ['/diagnostics']):
         for status in m.message.status:

@@ -210,7 +210,7 @@ class PendingImage:
 
 
 def pipeline_settings(params: dict) -> PipelineSettings:
-    """The core pipeline's settings from this node's parameters (defaults for any not given)."""
+    """Return the core pipeline's settings from this node's parameters (defaults for any not given)."""
     p = {q.name: q.default for q in PARAMS} | dict(params)
     return PipelineSettings(
         segmenter=p['segmenter'],
@@ -237,7 +237,7 @@ def recording_background(
     params: dict,
     bodies: dict[int, tuple] | None = None,
 ) -> BackgroundModel:
-    """The sequence segmenter's background of a recording (background_bag): at most background_frames of
+    """Return the sequence segmenter's background of a recording (background_bag): at most background_frames of
     ``frames``, without the ``bodies`` a first pass tracked at ``stamps`` (background_track) when given.
     """
     person_at = (
@@ -324,9 +324,10 @@ class ContourNode(Node):
         self._load_background()
         self.health.note('reconfigured', 'parameters changed: pipeline rebuilt')
 
-    # ------------------------------------------------------------ sequence background and tracked region
+    # ------------------------------------------------------------ sequence background and tracked
+    # region
     def _studio_camera(self):
-        """This camera's calibration from the studio parameters, when the tracked region is wanted."""
+        """Return this camera's calibration from the studio parameters, when the tracked region is wanted."""
         if self.params['keep_regions'] != 'tracked' and self.params['segmenter'] != 'sequence':
             return None
         try:
@@ -341,7 +342,7 @@ class ContourNode(Node):
             return None
 
     def _learn_background_from_bag(self):
-        """The sequence segmenter's background learnt from background_bag (None without one)."""
+        """Return the sequence segmenter's background learnt from background_bag (None without one)."""
         path = self.params['background_bag']
         if not path or self.params['segmenter'] != 'sequence':
             return None
@@ -373,7 +374,7 @@ class ContourNode(Node):
         return model
 
     def _new_pipeline(self) -> ContourPipeline:
-        """The pipeline for the current parameters, starting from the bag-learnt background if any."""
+        """Return the pipeline for the current parameters, starting from the bag-learnt background if any."""
         pipeline = ContourPipeline(pipeline_settings(self.params))
         if self.background is not None:
             pipeline.segmenter.method.set_model(self.background.copy())
@@ -411,7 +412,7 @@ class ContourNode(Node):
         self._segment(pending.msg, pending.image, pending.stamp)
 
     def _tracked_region(self, stamp: int, shape: tuple[int, int]) -> np.ndarray | None:
-        """The tracked body's projection grown by roi_margin, from markers at most roi_max_age older."""
+        """Return the tracked body's projection grown by roi_margin, from markers at most roi_max_age older."""
         if self.camera is None or self.markers is None:
             return None
         marker_stamp, body = self.markers
@@ -483,7 +484,8 @@ class ContourNode(Node):
                 'waiting for it: segmented with an older body',
             )
         if self.camera_info is None:
-            # contours are in pixels and need no intrinsics: go on (the size check waits for camera_info)
+            # contours are in pixels and need no intrinsics: go on (the size check waits for
+            # camera_info)
             self.health.note(
                 'no_camera_info', 'image before any camera_info: processed without the size check'
             )

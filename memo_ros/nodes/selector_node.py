@@ -128,7 +128,7 @@ PARAMS = (
 
 
 def selection_settings(params: dict) -> SelectionSettings:
-    """The core selector's settings from this node's parameters (defaults for any not given)."""
+    """Return the core selector's settings from this node's parameters (defaults for any not given)."""
     p = {q.name: q.default for q in PARAMS} | dict(params)
     return SelectionSettings(
         vi_threshold=p['vi_threshold'],
@@ -140,7 +140,7 @@ def selection_settings(params: dict) -> SelectionSettings:
 
 
 def header_stamp_ns(cdr: bytes) -> int | None:
-    """The header stamp of a serialized message that starts with std_msgs/Header (None if too short)."""
+    """Return the header stamp of a serialized message that starts with std_msgs/Header (None if too short)."""
     if len(cdr) < 12:
         return None
     endian = '<' if cdr[1] & 1 else '>'  # CDR encapsulation: 0x0001 little, 0x0000 big endian
@@ -363,7 +363,7 @@ class SelectorNode(Node):
 
     # ----------------------------------------------------------------- frame
     def _posterior(self, stamp: int) -> tuple[int, np.ndarray, np.ndarray] | None:
-        """The newest posterior older than the frame, if recent enough to predict from."""
+        """Return the newest posterior older than the frame, if recent enough to predict from."""
         for entry in reversed(self.posteriors):
             if entry[0] < stamp:
                 age = (stamp - entry[0]) * 1e-9

@@ -332,7 +332,8 @@ class TrackerNode(Node):
         )  # joined frames in a row without it
         self.late_stamps: dict[int, None] = {}  # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
-        # deep queues: a burst of frames (bag replay, a slow update) waits instead of being overwritten
+        # deep queues: a burst of frames (bag replay, a slow update) waits instead of being
+        # overwritten
         reliable = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=100
         )
@@ -371,7 +372,8 @@ class TrackerNode(Node):
             f'tracking with cameras {", ".join(self.camera_names)}; '
             f'initial pose: {"studio" if initial is not None else "from the silhouettes"}'
         )
-        # a frame is tracked as soon as the intake completes it (notified), or when its wait expires
+        # a frame is tracked as soon as the intake completes it (notified), or when its wait
+        # expires
         self.woken = False
         self.stopping = False
         self.failure: BaseException | None = None
@@ -447,7 +449,7 @@ class TrackerNode(Node):
         return on_contours
 
     def _frame_for(self, stamp: int, what: str) -> PendingFrame | None:
-        """The pending frame of ``stamp`` (call under the lock); None (counted) when it is late; a jump back
+        """Return the pending frame of ``stamp`` (call under the lock); None (counted) when it is late; a jump back
         in time resets the filter.
         """
         last = self.last_processed_ns
@@ -474,7 +476,7 @@ class TrackerNode(Node):
         return frame
 
     def _late(self, stamp: int, what: str) -> None:
-        """A message of a frame already processed or passed over: counted; a frame first heard of now is
+        """Return a message of a frame already processed or passed over: counted; a frame first heard of now is
         accounted for once, on /memo/processed as 'late'.
         """
         if stamp in self.late_stamps or stamp in self.done_stamps:
@@ -552,7 +554,8 @@ class TrackerNode(Node):
         else:
             window = self.params['camera_timeout'] * 1e9
             first = self.first_stamp_ns if self.first_stamp_ns is not None else stamp
-            # a camera not heard from yet is waited for during the first camera_timeout of the stream
+            # a camera not heard from yet is waited for during the first camera_timeout of the
+            # stream
             cams = [
                 c
                 for c in self.camera_names
@@ -568,7 +571,7 @@ class TrackerNode(Node):
         return all(c in frame.contours for c in self._expected_cameras(stamp, frame))
 
     def _next_frame(self) -> tuple[int, PendingFrame, list[str]] | None:
-        """The frame to track now, with the expected cameras it lacks: the oldest complete one (older
+        """Return the frame to track now, with the expected cameras it lacks: the oldest complete one (older
         incomplete ones first, as they are), else the oldest whose wait exceeded join_timeout, going through
         with what arrived.  Only time spent idle counts for the timeout: after a long update the queued
         messages get their turn.  Frames more than max_lag older than the newest ready one are skipped.
@@ -604,7 +607,7 @@ class TrackerNode(Node):
         return stamp, frame, missing
 
     def _skip(self, stamp: int) -> None:
-        """A frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""
+        """Return a frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""
         self.health.drop(
             'skipped_behind',
             f'the tracker is more than max_lag = {self.params["max_lag"]:g} s '
@@ -768,7 +771,8 @@ class TrackerNode(Node):
         self.pub_markers.publish(
             marker_array_message(stamp, self.body, result.rotations, result.origins)
         )
-        # error-state order: root translation (x, y, z) then the root's rotation increment, as REP 103 wants
+        # error-state order: root translation (x, y, z) then the root's rotation increment, as REP
+        # 103 wants
         self.pub_root.publish(
             root_pose_message(
                 stamp, result.rotations[0], result.origins[0], result.covariance[:6, :6]

@@ -164,7 +164,7 @@ def check_parameters(params: dict) -> None:
 
 
 def walker_settings(params: dict, frame_rate: float) -> WalkerSettings:
-    """The core settings from this node's parameters (defaults for any not given)."""
+    """Return the core settings from this node's parameters (defaults for any not given)."""
     check_parameters(params)
     p = {q.name: q.default for q in PARAMS} | dict(params)
     kalman = KalmanParams(
@@ -204,7 +204,7 @@ def walker_settings(params: dict, frame_rate: float) -> WalkerSettings:
 
 
 def box_corners(msg: PolygonStamped) -> np.ndarray | None:
-    """The rectangle's corners (4, 2) or None when nobody is seen; ValueError for a malformed polygon."""
+    """Return the rectangle's corners (4, 2) or None when nobody is seen; ValueError for a malformed polygon."""
     points = msg.polygon.points
     if len(points) == 0:
         return None
@@ -217,7 +217,7 @@ def box_corners(msg: PolygonStamped) -> np.ndarray | None:
 
 
 def edge_array(msg: PointCloud2) -> np.ndarray:
-    """The edge-line table of an ``edges`` cloud; ValueError when fields are missing."""
+    """Return the edge-line table of an ``edges`` cloud; ValueError when fields are missing."""
     table = pointcloud_to_array(msg)
     missing = [
         n for n in ('x1', 'y1', 'x2', 'y2', 'magnitude') if n not in (table.dtype.names or ())

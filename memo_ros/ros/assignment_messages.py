@@ -34,7 +34,7 @@ def _flag(value: bool) -> str:
 
 
 def assignment_to_message(assignment: Assignment, stamp: Time | int) -> DiagnosticArray:
-    """The assignment of frame ``stamp`` (builtin_interfaces/Time or ns) in ``world``."""
+    """Return the assignment of frame ``stamp`` (builtin_interfaces/Time or ns) in ``world``."""
     msg = DiagnosticArray()
     msg.header.stamp = stamp if isinstance(stamp, Time) else stamp_from_ns(int(stamp))
     msg.header.frame_id = WORLD
@@ -59,7 +59,7 @@ def assignment_to_message(assignment: Assignment, stamp: Time | int) -> Diagnost
 
 
 def is_assignment_message(msg) -> bool:
-    """True for a DiagnosticArray in this module's layout (one status per part, with a ``mode`` value)."""
+    """Return True for a DiagnosticArray in this module's layout (one status per part, with a ``mode`` value)."""
     if not isinstance(msg, DiagnosticArray) or len(msg.status) != len(PART_NAMES):
         return False
     return all(s.name == p for s, p in zip(msg.status, PART_NAMES)) and any(
@@ -68,7 +68,7 @@ def is_assignment_message(msg) -> bool:
 
 
 def assignment_from_message(msg: DiagnosticArray) -> Assignment:
-    """The Assignment a message carries; ValueError when the message is not in this layout."""
+    """Return the Assignment a message carries; ValueError when the message is not in this layout."""
     if not is_assignment_message(msg):
         raise ValueError(
             'not a camera assignment: expected one DiagnosticStatus per part in part order '
@@ -136,7 +136,7 @@ def assignment_rows(msg: DiagnosticArray) -> list[dict]:
 
 
 def assignment_table(msg: DiagnosticArray) -> list[str]:
-    """The message as text lines: a header, then a part x camera table (rank 1 = the best selected camera)."""
+    """Return the message as text lines: a header, then a part x camera table (rank 1 = the best selected camera)."""
     a = assignment_from_message(msg)
     stamp = msg.header.stamp
     lines = [

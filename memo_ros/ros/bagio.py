@@ -25,7 +25,7 @@ _T = TYPESTORE.types
 
 
 def header(stamp_ns: int, frame_id: str):
-    """A std_msgs/Header for the typestore."""
+    """Return a std_msgs/Header for the typestore."""
     return _T['std_msgs/msg/Header'](
         stamp=_T['builtin_interfaces/msg/Time'](
             sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
@@ -166,7 +166,7 @@ class BagError(ValueError):
 
 
 def open_bag(path: str | Path) -> Reader:
-    """An open rosbags Reader for a bag directory or a single .mcap/.db3 file, or a BagError saying why not."""
+    """Return an open rosbags Reader for a bag directory or a single .mcap/.db3 file, or a BagError saying why not."""
     path = Path(path)
     if not path.exists():
         raise BagError(f'no bag at {path}')

@@ -48,7 +48,7 @@ def processed_outcome(frame_id: str) -> str:
 
 
 def processed_message(stamp_ns: int, outcome: str) -> Header:
-    """The frame ``stamp_ns`` is done (``outcome`` in frame_id: tracking, lost, waiting, dropped...): replay's back-pressure."""
+    """Return the frame ``stamp_ns`` is done (``outcome`` in frame_id: tracking, lost, waiting, dropped...): replay's back-pressure."""
     return Header(stamp=stamp_from_ns(stamp_ns), frame_id=outcome)
 
 
@@ -113,7 +113,7 @@ def marker_array_message(
 def root_pose_message(
     stamp_ns: int, rotation: np.ndarray, origin: np.ndarray, covariance: np.ndarray
 ) -> PoseWithCovarianceStamped:
-    """The pelvis pose with its 6x6 covariance (x, y, z, rotation about x, y, z), like robot_localization's output."""
+    """Return the pelvis pose with its 6x6 covariance (x, y, z, rotation about x, y, z), like robot_localization's output."""
     msg = PoseWithCovarianceStamped(header=world_header(stamp_ns))
     msg.pose.pose = _pose(rotation, origin)
     msg.pose.covariance = [float(v) for v in np.asarray(covariance, float).reshape(36)]

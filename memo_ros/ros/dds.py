@@ -33,7 +33,7 @@ DURABILITY = {
 def qos_profile(
     reliability: str = 'reliable', depth: int = 10, durability: str = 'volatile'
 ) -> QoSProfile:
-    """A keep-last QoS profile from the names used on the command line."""
+    """Return a keep-last QoS profile from the names used on the command line."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
         depth=depth,
@@ -45,7 +45,7 @@ def qos_profile(
 def adapted_qos(
     node: Node, topic: str, depth: int, reliability: str = 'auto', durability: str = 'auto'
 ) -> QoSProfile:
-    """A subscription profile that matches every current publisher of ``topic`` ('auto' adapts like rosbag2).
+    """Return a subscription profile that matches every current publisher of ``topic`` ('auto' adapts like rosbag2).
 
     Reliable only when all publishers are reliable, transient-local only when all
     are, so a subscriber neither misses best-effort publishers nor latched messages.
@@ -65,7 +65,7 @@ def adapted_qos(
 
 
 def absolute_topic(name: str) -> str:
-    """A topic name resolved against the root namespace ('cam/image_raw' -> '/cam/image_raw')."""
+    """Return a topic name resolved against the root namespace ('cam/image_raw' -> '/cam/image_raw')."""
     name = name.strip()
     return name if name.startswith('/') else '/' + name
 
@@ -82,7 +82,7 @@ def wait_for_topic_type(
     stop: threading.Event | None = None,
     period: float = 0.1,
 ) -> str | None:
-    """The type of ``topic`` once a publisher or subscriber announces it (None on timeout or stop)."""
+    """Return the type of ``topic`` once a publisher or subscriber announces it (None on timeout or stop)."""
     deadline = None if timeout is None else time.monotonic() + timeout
     while stop is None or not stop.is_set():
         types = topic_types(node).get(topic)
@@ -101,7 +101,7 @@ def wait_for_topic_type(
 def ros_session(
     node_name: str, domain_id: int | None = None
 ) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
-    """A node and its executor on a private context; shut down executor, node, context on exit."""
+    """Return a node and its executor on a private context; shut down executor, node, context on exit."""
     context = Context()
     rclpy.init(
         context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO
@@ -124,7 +124,7 @@ def ros_session(
 
 @contextmanager
 def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threading.Event]:
-    """An event that SIGINT and SIGTERM set (instead of raising), so loops finish cleanly; handlers restored on exit."""
+    """Return an event that SIGINT and SIGTERM set (instead of raising), so loops finish cleanly; handlers restored on exit."""
     stop = threading.Event()
 
     def handler(signum, frame) -> None:
@@ -144,8 +144,10 @@ def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threa
 
 
 PROFILES_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
-# One process playing every camera, where each camera would have its own driver: Fast DDS's default 512 KiB
-# shared-memory segment per participant holds one 640x480 image, so the other cameras' images of a frame are
+# One process playing every camera, where each camera would have its own driver: Fast DDS's default
+# 512 KiB
+# shared-memory segment per participant holds one 640x480 image, so the other cameras' images of a
+# frame are
 # lost in the player; reliable ones are repaired about a second later, which stalls a replay.
 LARGE_SEGMENT_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
@@ -168,7 +170,7 @@ PLAYER_SEGMENT_FRAMES = (
 
 
 def player_segment_bytes(cameras) -> int:
-    """The shared-memory segment for one process playing ``cameras``: a few frames of all, at least 8 MiB."""
+    """Return the shared-memory segment for one process playing ``cameras``: a few frames of all, at least 8 MiB."""
     return max(PLAYER_SEGMENT_FRAMES * sum(4 * c.width * c.height for c in cameras), 8 << 20)
 
 

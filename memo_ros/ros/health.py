@@ -98,7 +98,7 @@ class NodeHealth:
         return guarded
 
     def ok(self) -> None:
-        """A frame went through: clear the warning level (the last problem stays in the values)."""
+        """Return a frame went through: clear the warning level (the last problem stays in the values)."""
         self._level = DiagnosticStatus.OK
 
     def set(self, key: str, value) -> None:
@@ -107,7 +107,7 @@ class NodeHealth:
             self.values[key] = str(value)
 
     def status(self) -> DiagnosticStatus:
-        """The node's current DiagnosticStatus."""
+        """Return the node's current DiagnosticStatus."""
         status = DiagnosticStatus()
         status.level = self._level
         status.name = self._name

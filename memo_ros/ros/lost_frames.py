@@ -26,7 +26,7 @@ class LostFrameCounter:
         self.newest_received: int | None = None
 
     def announced(self, stamp: int) -> list[int]:
-        """A frame was announced; ``[stamp]`` when its image is already known lost, else [] (also for an
+        """Return a frame was announced; ``[stamp]`` when its image is already known lost, else [] (also for an
         unstamped announcement, stamp 0, which names no frame).
         """
         if stamp == 0 or stamp in self._settled_set or stamp in self._waiting:
@@ -42,7 +42,7 @@ class LostFrameCounter:
         return []
 
     def received(self, stamp: int) -> list[int]:
-        """An image arrived; the announced stamps before it that had none, oldest first (now lost)."""
+        """Return an image arrived; the announced stamps before it that had none, oldest first (now lost)."""
         self._settle(stamp)
         self._waiting.discard(stamp)
         if self.newest_received is None or stamp > self.newest_received:

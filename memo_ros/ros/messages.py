@@ -52,7 +52,7 @@ def stamp_to_ns(stamp) -> int:
 
 
 def import_message_type(type_name: str) -> type:
-    """The rclpy message class for 'pkg/msg/Name' (also 'pkg/Name'), with a clear error when unavailable."""
+    """Return the rclpy message class for 'pkg/msg/Name' (also 'pkg/Name'), with a clear error when unavailable."""
     parts = type_name.strip().split('/')
     if len(parts) == 2:
         parts.insert(1, 'msg')
@@ -74,12 +74,12 @@ def import_message_type(type_name: str) -> type:
 
 
 def is_message(value) -> bool:
-    """True for an rclpy (or any rosidl-generated) message instance."""
+    """Return True for an rclpy (or any rosidl-generated) message instance."""
     return hasattr(value, 'get_fields_and_field_types') and not isinstance(value, type)
 
 
 def element_type(field_type: str) -> str:
-    """The element type of an array field type ('sequence<double, 4>' or 'double[9]' -> 'double')."""
+    """Return the element type of an array field type ('sequence<double, 4>' or 'double[9]' -> 'double')."""
     match = re.fullmatch(r'sequence<([^,>]+)(?:,\s*\d+)?>', field_type)
     if match:
         return match.group(1)
@@ -87,12 +87,12 @@ def element_type(field_type: str) -> str:
 
 
 def is_array_type(field_type: str) -> bool:
-    """True for sequence and fixed-size array field types."""
+    """Return True for sequence and fixed-size array field types."""
     return field_type.startswith('sequence<') or field_type.endswith(']')
 
 
 def _plain_scalar(value, field_type: str):
-    """A Python scalar (octets and numpy scalars become int/float)."""
+    """Return a Python scalar (octets and numpy scalars become int/float)."""
     if isinstance(value, bytes):
         return value[0] if len(value) == 1 else list(value)
     if isinstance(value, np.generic):
@@ -101,7 +101,7 @@ def _plain_scalar(value, field_type: str):
 
 
 def _plain_array(value, field_type: str) -> list:
-    """An array field as a list of plain values (or of dicts for nested messages)."""
+    """Return an array field as a list of plain values (or of dicts for nested messages)."""
     if isinstance(value, (np.ndarray, array.array)):
         return value.tolist()
     if isinstance(value, (bytes, bytearray)):
@@ -111,7 +111,7 @@ def _plain_array(value, field_type: str) -> list:
 
 
 def message_to_dict(msg) -> dict:
-    """A message as nested dicts and lists of plain Python values, in field order."""
+    """Return a message as nested dicts and lists of plain Python values, in field order."""
     out = {}
     for name, field_type in msg.get_fields_and_field_types().items():
         value = getattr(msg, name)
@@ -200,7 +200,7 @@ def _emit_fields(msg, pad: str, lines: list[str], truncate: int | None) -> None:
 
 
 def format_cell(value) -> str:
-    """A table or CSV cell: integers exact, floats in the shortest form that round-trips at their precision."""
+    """Return a table or CSV cell: integers exact, floats in the shortest form that round-trips at their precision."""
     if isinstance(value, np.floating):
         return str(value)
     if isinstance(value, float):
@@ -235,7 +235,7 @@ def pointcloud_table(msg, max_rows: int | None = None) -> list[str]:
 def message_to_yaml(
     msg, truncate_length: int | None = DEFAULT_TRUNCATE, max_rows: int | None = 20
 ) -> str:
-    """A message as ``ros2 topic echo`` style YAML (no trailing '---').
+    """Return a message as ``ros2 topic echo`` style YAML (no trailing '---').
 
     Numeric arrays longer than ``truncate_length`` are abbreviated (None prints
     everything).  A PointCloud2 gets a ``points`` block with a table of its

@@ -101,7 +101,7 @@ def declare(
 
 
 def validator(params: tuple[Param, ...], check: Callable[[dict], object] | None = None):
-    """An on-set-parameters callback refusing out-of-range values, and combinations ``check`` refuses, with a reason."""
+    """Return an on-set-parameters callback refusing out-of-range values, and combinations ``check`` refuses, with a reason."""
     table = {p.name: p for p in params}
 
     def callback(changes) -> SetParametersResult:
@@ -123,7 +123,7 @@ def validator(params: tuple[Param, ...], check: Callable[[dict], object] | None 
 
 
 def markdown_table(params: tuple[Param, ...]) -> str:
-    """The README's parameter table."""
+    """Return the README's parameter table."""
     rows = ['| parameter | type | default | range | description |', '|---|---|---|---|---|']
     for p in params:
         kind = type(p.default).__name__

@@ -32,7 +32,7 @@ NUMPY_TO_FIELD = {
 
 
 def dtype_from_fields(fields, point_step: int, big_endian: bool = False) -> np.dtype:
-    """The structured dtype of one point described by ``fields`` (PointField list) and ``point_step``."""
+    """Return the structured dtype of one point described by ``fields`` (PointField list) and ``point_step``."""
     order = '>' if big_endian else '<'
     names, formats, offsets = [], [], []
     for field in fields:
@@ -124,7 +124,7 @@ def _little_endian(dtype: np.dtype) -> np.dtype:
 
 
 def _is_dense(array: np.ndarray) -> bool:
-    """True when no floating-point field holds NaN or infinity (no invalid points)."""
+    """Return True when no floating-point field holds NaN or infinity (no invalid points)."""
     for name in array.dtype.names:
         values = array[name]
         if values.dtype.base.kind == 'f' and not np.isfinite(values).all():
@@ -133,7 +133,7 @@ def _is_dense(array: np.ndarray) -> bool:
 
 
 def array_to_pointcloud(array: np.ndarray, header: Header | None = None) -> PointCloud2:
-    """An unorganized (height 1) little-endian PointCloud2 holding the rows of a structured array."""
+    """Return an unorganized (height 1) little-endian PointCloud2 holding the rows of a structured array."""
     array = np.asarray(array).reshape(-1)
     fields = fields_from_dtype(array.dtype)
     packed = np.ascontiguousarray(array.astype(_little_endian(array.dtype), copy=False))

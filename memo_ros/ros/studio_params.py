@@ -17,7 +17,7 @@ SHARED_ROOTS = ('studio', 'body', 'initial_pose')
 
 
 def studio_from_node(node: Node) -> Studio:
-    """The studio described by the node's ``studio.*``, ``body.*`` and ``initial_pose.*`` parameters."""
+    """Return the studio described by the node's ``studio.*``, ``body.*`` and ``initial_pose.*`` parameters."""
     nested: dict = {}
     # rclpy keeps the params-file values it has not declared yet in _parameter_overrides
     for name, param in {**node._parameter_overrides, **node._parameters}.items():

@@ -123,7 +123,7 @@ class YamlPrinter:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The topic, optional type, and output and QoS options."""
+    """Return the topic, optional type, and output and QoS options."""
     parser.add_argument('topic', help='topic to print')
     parser.add_argument(
         'type', nargs='?', help='message type (pkg/msg/Name); default: from the graph'
@@ -171,7 +171,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> int | None:
-    """The number of messages to print (None: forever), after validating the options."""
+    """Return the number of messages to print (None: forever), after validating the options."""
     from memo_ros.tools.cli import CliError
 
     if args.count is not None and args.count < 1:
@@ -186,7 +186,7 @@ def _check(args: argparse.Namespace) -> int | None:
 
 
 def _printer(args: argparse.Namespace):
-    """The CSV or YAML printer the options ask for."""
+    """Return the CSV or YAML printer the options ask for."""
     truncate = None if args.full else args.truncate_length
     if args.csv:
         return CsvPrinter(sys.stdout, truncate, args.max_rows)

@@ -227,7 +227,7 @@ def run_keypoints(args: argparse.Namespace) -> int:
 
 
 def _silhouettes(args: argparse.Namespace, studio, estimate):
-    """The silhouette report of ``estimate`` against the person segmented in ``args.images``."""
+    """Return the silhouette report of ``estimate`` against the person segmented in ``args.images``."""
     from memo_ros.tools.cli import CliError
     from memo_ros.tools.silhouette_eval import (
         evaluate_silhouettes,

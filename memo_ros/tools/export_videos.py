@@ -146,7 +146,7 @@ class VideoExportError(ValueError):
 
 
 def _message_count(bag: Path, topics: list[str]) -> int:
-    """Number of messages on ``topics`` from the bag's index, for progress."""
+    """Return the number of messages on ``topics`` from the bag's index, for progress."""
     reader = open_bag(bag)
     try:
         return sum(c.msgcount for c in reader.connections if c.topic in topics)
@@ -155,7 +155,7 @@ def _message_count(bag: Path, topics: list[str]) -> int:
 
 
 def _to_video_frame(message, colour: bool) -> np.ndarray:
-    """The 8-bit grey (H, W) or BGR (H, W, 3) picture of a sensor_msgs/Image."""
+    """Return the 8-bit grey (H, W) or BGR (H, W, 3) picture of a sensor_msgs/Image."""
     from memo_ros.core.vision.encodings import to_grey8
 
     pixels = image_to_array(

@@ -227,7 +227,7 @@ def parse_offsets(items: list[str]) -> dict[str, float]:
 def match_videos(
     videos: list[Path], cameras: list[Camera], names: list[str] | None = None
 ) -> list[Camera]:
-    """The calibration camera of each video: by ``names``, else by file stem if all stems match, else by order."""
+    """Return the calibration camera of each video: by ``names``, else by file stem if all stems match, else by order."""
     by_name = {c.name: c for c in cameras}
     if names is not None:
         if len(names) != len(videos):
@@ -260,7 +260,7 @@ def match_videos(
 def fit_camera(
     cam: Camera, width: int, height: int, size_known: bool, crop_tolerance: int, video: Path
 ) -> tuple[Camera, str | None]:
-    """The camera at the video's frame size, and a note when that needed an assumption; else a one-line error."""
+    """Return the camera at the video's frame size, and a note when that needed an assumption; else a one-line error."""
     if (cam.width, cam.height) == (width, height):
         return cam, None
     resized = Camera(
@@ -288,7 +288,7 @@ def fit_camera(
 
 
 def scaled_camera(cam: Camera, scale: float) -> Camera:
-    """The camera of images resized by ``scale`` with cv2.resize: Camera.scaled, per axis when sizes round."""
+    """Return the camera of images resized by ``scale`` with cv2.resize: Camera.scaled, per axis when sizes round."""
     small = cam.scaled(scale)
     sx, sy = small.width / cam.width, small.height / cam.height
     if sx == scale and sy == scale:
@@ -363,7 +363,7 @@ def _frames(source: VideoSource, first: int, last: int | None) -> Iterator[tuple
 
 
 def convert_frame(bgr: np.ndarray, size: tuple[int, int], encoding: str) -> np.ndarray:
-    """A decoded BGR frame resized to ``size`` (width, height) and converted to ``encoding``."""
+    """Return a decoded BGR frame resized to ``size`` (width, height) and converted to ``encoding``."""
     import cv2
 
     if (bgr.shape[1], bgr.shape[0]) != size:

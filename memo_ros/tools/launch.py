@@ -76,7 +76,7 @@ def graph_commands(
     log_level: str = 'info',
     role: str = 'all',
 ) -> list[NodeProcess]:
-    """The processes of the graph: one contour_node per camera, in its camera's namespace, and the
+    """Return the processes of the graph: one contour_node per camera, in its camera's namespace, and the
     articulated tracker with its camera selector for a multi-camera studio (or one whose file configures
     ``tracker_node``); ``role`` cameras keeps the contour nodes only, tracking the others.
     """
@@ -97,7 +97,8 @@ def graph_commands(
             log_level,
         ]
         if reliable_images:
-            # replay: a burst of images re-sent to a late-matching reader must not overflow its queue
+            # replay: a burst of images re-sent to a late-matching reader must not overflow its
+            # queue
             command += [
                 '-p',
                 'reliable_images:=true',

@@ -184,7 +184,7 @@ def _overlay_frames(errors: FrameErrors, truth_stamps: np.ndarray) -> dict[int, 
 
 
 def _nearest(stamps: np.ndarray, stamp: int) -> int:
-    """The element of sorted ``stamps`` nearest to ``stamp``."""
+    """Return the element of sorted ``stamps`` nearest to ``stamp``."""
     k = int(np.searchsorted(stamps, stamp))
     candidates = [i for i in (k - 1, k) if 0 <= i < len(stamps)]
     return int(stamps[min(candidates, key=lambda i: abs(int(stamps[i]) - stamp))])

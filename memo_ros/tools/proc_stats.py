@@ -41,7 +41,7 @@ def rss_mb(pid: int) -> float | None:
 
 
 def children(pid: int) -> dict[int, list[str]]:
-    """The live child processes of ``pid``: child pid -> its command line."""
+    """Return the live child processes of ``pid``: child pid -> its command line."""
     found = {}
     for entry in Path('/proc').iterdir():
         if not entry.name.isdigit():
@@ -70,7 +70,7 @@ def stop_process(process: subprocess.Popen, timeout: float = 5.0) -> None:
 
 
 def log_tail(log: Path, lines: int = 10) -> str:
-    """The last ``lines`` lines of a process's log file ('' when unreadable)."""
+    """Return the last ``lines`` lines of a process's log file ('' when unreadable)."""
     try:
         return '\n'.join(log.read_text(errors='replace').splitlines()[-lines:])
     except OSError:

@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _bag_topics(bag: Path) -> dict[str, str]:
-    """The bag's topics, read before anything is launched: an unreadable bag is a one-line error."""
+    """Return the bag's topics, read before anything is launched: an unreadable bag is a one-line error."""
     from memo_ros.ros.bagio import BagError, bag_topics
     from memo_ros.tools.cli import CliError
 

@@ -59,7 +59,7 @@ class SilhouetteReport:
 
 
 def model_shape(estimate: Path, body: Body) -> ModelShape:
-    """The body the tracker used: from its first /memo/markers (one cylinder per part), else ``body``."""
+    """Return the body the tracker used: from its first /memo/markers (one cylinder per part), else ``body``."""
     from memo_ros.ros.bagio import bag_topics, read_messages
 
     if MARKERS_TOPIC in bag_topics(estimate):
@@ -100,7 +100,7 @@ def _camera_images(images: Path, camera: str, colour: bool) -> list[tuple[int, n
 
 
 def _previous(stamps: np.ndarray, stamp: int) -> int | None:
-    """The newest of the sorted ``stamps`` strictly before ``stamp``."""
+    """Return the newest of the sorted ``stamps`` strictly before ``stamp``."""
     k = int(np.searchsorted(stamps, stamp)) - 1
     return int(stamps[k]) if k >= 0 else None
 
@@ -217,7 +217,7 @@ def write_per_frame(path: Path, report: SilhouetteReport) -> None:
 
 
 def print_silhouette_report(report: SilhouetteReport) -> None:
-    """The IoU table per camera, then the frames lost after the first tracked one."""
+    """Return the IoU table per camera, then the frames lost after the first tracked one."""
     print(f'{"camera":<10} {"frames":>6} {"IoU mean":>9} {"median":>7} {"min":>6}')
     for name, row in report.summary.items():
         print(
@@ -237,7 +237,7 @@ def print_silhouette_report(report: SilhouetteReport) -> None:
 
 
 def silhouette_summary(report: SilhouetteReport) -> dict:
-    """The --json object."""
+    """Return the --json object."""
     return {
         'frames': int(len(report.stamps)),
         'cameras': report.summary,

@@ -193,7 +193,8 @@ def simulate(
             raise FileExistsError(f'{out} exists already (use --force to replace it)')
         shutil.rmtree(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    # Kakadiaris & Metaxas assume the initial pose known: the studio carries the subject's first true pose
+    # Kakadiaris & Metaxas assume the initial pose known: the studio carries the subject's first
+    # true pose
     q0, _ = scenario.coordinates(np.zeros(1))
     start_pose = dict(zip(body.coordinate_names, map(float, q0[0]))) if initial_pose else {}
     Studio(

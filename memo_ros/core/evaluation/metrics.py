@@ -49,7 +49,7 @@ def phase_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def summarize(errors: FrameErrors, body_height: float, frames_truth: int) -> dict:
-    """The summary figures; keys are stable (the ``--json`` contract)."""
+    """Return the summary figures; keys are stable (the ``--json`` contract)."""
     have = errors.joint_mm.size > 0
     translation_pct = errors.joint_mm / (10.0 * body_height)  # mm / (1000 * h) * 100
     return {

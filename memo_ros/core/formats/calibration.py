@@ -83,7 +83,7 @@ class Calibration:
 
 # ----------------------------------------------------------------------------- helpers
 def ros_name(raw: str, index: int) -> str:
-    """A valid ROS name token for a camera: invalid characters to '_', 'cam' prefixed to a leading digit."""
+    """Return a valid ROS name token for a camera: invalid characters to '_', 'cam' prefixed to a leading digit."""
     name = re.sub(r'_+', '_', re.sub(r'[^A-Za-z0-9_]', '_', str(raw).strip())).strip('_')
     if not name:
         return f'cam{index + 1:02d}'
@@ -153,7 +153,7 @@ def _check_names(cameras: list[Camera], source: str) -> None:
 
 
 def _camera(source: str, **kwargs) -> Camera:
-    """A Camera, with its validation errors as CalibrationError naming the file."""
+    """Return a Camera, with its validation errors as CalibrationError naming the file."""
     try:
         return Camera(**kwargs)
     except ValueError as exc:
@@ -161,7 +161,7 @@ def _camera(source: str, **kwargs) -> Camera:
 
 
 def _far_camera_note(cameras: list[Camera], unit: str, option: str) -> list[str]:
-    """A note when cameras sit implausibly far from the origin for the unit assumed."""
+    """Return a note when cameras sit implausibly far from the origin for the unit assumed."""
     far = max(float(np.linalg.norm(c.t_world_cam)) for c in cameras)
     if far > FAR_CAMERA_M:
         return [
@@ -241,7 +241,7 @@ def _qualisys_camera(tag: ET.Element, index: int, path: Path) -> Camera:
 
 
 def write_qualisys(cameras: list[Camera], path: str | Path) -> Path:
-    """A ``.qca.txt`` that :func:`read_qualisys` and Pose2Sim read back as ``cameras``."""
+    """Return a ``.qca.txt`` that :func:`read_qualisys` and Pose2Sim read back as ``cameras``."""
     _check_names(cameras, str(path))
     root = ET.Element(
         'calibration', {'created': 'memo_ros', 'source': 'memo_ros', 'type': 'regular'}
@@ -356,7 +356,7 @@ def read_toml(path: str | Path, unit: str = 'm') -> list[Camera]:
 
 
 def write_toml(cameras: list[Camera], path: str | Path, unit: str = 'm') -> Path:
-    """A ``calibration.toml`` in Anipose's layout (tables cam_0, cam_1, ...), translations in ``unit``."""
+    """Return a ``calibration.toml`` in Anipose's layout (tables cam_0, cam_1, ...), translations in ``unit``."""
     factor = _unit_factor(unit)
     _check_names(cameras, str(path))
 
@@ -512,7 +512,8 @@ def write_easymocap(cameras: list[Camera], folder: str | Path, unit: str = 'm') 
     return [intri_path, extri_path]
 
 
-# ----------------------------------------------------------------------------- ROS camera_calibration
+# ----------------------------------------------------------------------------- ROS
+# camera_calibration
 def _load_yaml(path: Path) -> dict:
     try:
         with open(path, encoding='utf-8') as stream:
@@ -642,9 +643,10 @@ def write_ros(cameras: list[Camera], folder: str | Path) -> list[Path]:
     return written + [path]
 
 
-# ----------------------------------------------------------------------------- detection and entry points
+# ----------------------------------------------------------------------------- detection and entry
+# points
 def detect_format(path: str | Path) -> str:
-    """The format of a calibration file or folder, from its name and content."""
+    """Return the format of a calibration file or folder, from its name and content."""
     path = Path(path)
     if not path.exists():
         raise CalibrationError(f'no calibration at {path}')

@@ -47,7 +47,7 @@ class Studio:
     initial_pose: dict[str, float] = field(default_factory=dict)
 
     def camera(self, name: str) -> Camera:
-        """The camera called ``name``."""
+        """Return the camera called ``name``."""
         for cam in self.cameras:
             if cam.name == name:
                 return cam
@@ -58,7 +58,7 @@ class Studio:
         return [c.name for c in self.cameras]
 
     def to_yaml_dict(self) -> dict:
-        """The params-file mapping (see the module docstring)."""
+        """Return the params-file mapping (see the module docstring)."""
         studio = {
             'name': self.name,
             'frame_rate': float(self.frame_rate),
@@ -174,7 +174,7 @@ def _camera_from_entry(name: str, entry, source: str) -> Camera:
 
 
 def studio_path(path_or_name: str | Path) -> Path:
-    """A studio file's path: as given, or a shipped studio by name (e.g. 'studio_orthogonal')."""
+    """Return a studio file's path: as given, or a shipped studio by name (e.g. 'studio_orthogonal')."""
     path = Path(path_or_name)
     if not path.is_file() and path.suffix == '' and not path.parent.parts:
         from memo_ros.paths import config_path

@@ -211,7 +211,7 @@ class Body:
         return float(self.distal_ends(rotations, origins)[1, 2])
 
     def to_dict(self) -> dict:
-        """The body as the studio YAML's ``body`` mapping."""
+        """Return the body as the studio YAML's ``body`` mapping."""
         return {
             'name': self.name,
             'parts': {
@@ -326,7 +326,7 @@ def lowest_point(
 
 
 def load_default_body() -> Body:
-    """The shipped average adult (config/body_average_adult.yaml)."""
+    """Return the shipped average adult (config/body_average_adult.yaml)."""
     from memo_ros.paths import config_path
 
     return Body.from_yaml(config_path('body_average_adult.yaml'))

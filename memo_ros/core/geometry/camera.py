@@ -37,7 +37,7 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 
 
 def perspective_jacobian(Pc: np.ndarray, f: float = 1.0) -> np.ndarray:
-    """The paper's H (eq. 8): d(f x/z, f y/z)/d(x, y, z) for camera-frame points (..., 3) -> (..., 2, 3)."""
+    """Return the paper's H (eq. 8): d(f x/z, f y/z)/d(x, y, z) for camera-frame points (..., 3) -> (..., 2, 3)."""
     Pc = np.asarray(Pc, float)
     x, y, z = Pc[..., 0], Pc[..., 1], Pc[..., 2]
     zero = np.zeros_like(z)
@@ -272,7 +272,7 @@ class Camera:
         return xy.reshape(xd.shape)
 
     def pixel_rays(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Unit ray directions in world (..., 3) through pixels (u, v) (broadcast), undistorted."""
+        """Return unit ray directions in world (..., 3) through pixels (u, v) (broadcast), undistorted."""
         u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
         K = self.K
         yd = (v - K[1, 2]) / K[1, 1]  # K^-1 applied exactly, skew included
@@ -314,7 +314,7 @@ class Camera:
         return max(int(round(self.width * scale)), 1), max(int(round(self.height * scale)), 1)
 
     def scaled(self, scale: float) -> 'Camera':
-        """The camera for the image resized by ``scale``: u_small = (u + 0.5) * scale - 0.5."""
+        """Return the camera for the image resized by ``scale``: u_small = (u + 0.5) * scale - 0.5."""
         width, height = self._scaled_size(scale)
         K = self.K.copy()
         K[0, :2] *= scale
@@ -350,7 +350,7 @@ class Camera:
         D=(),
         distortion_model: str = 'plumb_bob',
     ) -> 'Camera':
-        """A camera at ``eye`` looking at ``target``, image y along -``up`` (REP 103 optical frame), for studios."""
+        """Return a camera at ``eye`` looking at ``target``, image y along -``up`` (REP 103 optical frame), for studios."""
         # A view parallel to ``up`` uses the world axis least aligned with it as up instead.
         # cx, cy default to the image centre ((width - 1) / 2, (height - 1) / 2); fy to fx.
         eye, target, up = (np.asarray(a, float).reshape(3) for a in (eye, target, up))
@@ -438,7 +438,8 @@ class Camera:
         t_world_cam=None,
     ) -> 'Camera':
         """Camera from sensor_msgs/CameraInfo fields; the pose (not in CameraInfo) comes from the studio."""
-        # r and p (rectification, rectified projection) do not affect raw-image projection: length-checked only.
+        # r and p (rectification, rectified projection) do not affect raw-image projection:
+        # length-checked only.
         # The name defaults to frame_id without an '_optical_frame' suffix.
         k = np.asarray(k, float)
         if k.size != 9 or not np.any(k):

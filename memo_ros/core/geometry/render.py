@@ -253,7 +253,7 @@ def _sane_parts(rotations: np.ndarray, origins: np.ndarray) -> np.ndarray:
 def render_body(
     camera: Camera, body, q: np.ndarray, scale: float = 1.0, normals: bool = False
 ) -> Rendering:
-    """Convenience: forward kinematics of ``body`` at ``q`` then :func:`render`."""
+    """Provide, for convenience: forward kinematics of ``body`` at ``q`` then :func:`render`."""
     rotations, origins = body.forward_kinematics(q)
     return render(
         camera, rotations, origins, body.semi_axes, body.lengths, scale=scale, normals=normals

@@ -34,7 +34,8 @@ JOINT_LIMITS: dict[str, tuple[float, float]] = {
 }
 # the turn by pi about the body's own vertical: rotations about x and y change sign, about z not
 TWIN_SIGN = {'x': -1.0, 'y': -1.0, 'z': 1.0}
-# an elbow bent backwards by more than this is the same arm with the upper arm turned about its axis
+# an elbow bent backwards by more than this is the same arm with the upper arm turned about its
+# axis
 ELBOW_REFLEX = 0.2  # rad; below it a slightly negative elbow is only clamped to straight
 
 
@@ -119,7 +120,7 @@ class Anatomy:
         return np.maximum(self.limit_low - v, 0.0) + np.maximum(v - self.limit_high, 0.0)
 
     def twin(self, q: np.ndarray) -> np.ndarray:
-        """The pose turned by pi about the pelvis' vertical with left and right exchanged.
+        """Return the pose turned by pi about the pelvis' vertical with left and right exchanged.
 
         Every part except the feet covers the same volume as in ``q``: the root
         keeps its position and turns about its own z axis, and each joint takes
@@ -133,7 +134,7 @@ class Anatomy:
         return out
 
     def tangent_map(self) -> np.ndarray:
-        """The twin's map of tangent vectors (rates, covariances): M with v_twin = M v, (n, n).
+        """Return the twin's map of tangent vectors (rates, covariances): M with v_twin = M v, (n, n).
 
         Joints as :meth:`twin`; the root's body-frame rates turn with it
         (about x and y they change sign), its translation rates stay.

@@ -31,7 +31,8 @@ from memo_ros.core.multiview.model_nodes import ModelNodes, fan_alignment
 
 NEIGHBOURS = 8  # nearest projected candidates examined per contour sample
 RAY_TOLERANCE_M = 0.01  # the same for the exact ray test
-RIM_VIEW_COS = 0.35  # a rim node may be on the outline when its fan holds a normal within ~20 deg of perpendicular
+# a rim node may be on the outline when its fan holds a normal within ~20 deg of perpendicular
+RIM_VIEW_COS = 0.35
 OUTLINE_PROBE_PX = (
     2.0  # a node is on the outline when the body leaves background this far outside it
 )
@@ -106,8 +107,10 @@ def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
     arc = np.hypot(x[nxt] - x[prv], y[nxt] - y[prv])
     turn = np.arctan2(tx[prv] * ty[nxt] - ty[prv] * tx[nxt], tx[prv] * tx[nxt] + ty[prv] * ty[nxt])
     kappa = np.where((arc > 1e-6) & (length >= 3), turn / np.maximum(arc, 1e-6), 0.0)
-    # the outward normal is (-ty, tx): a tangent turning towards it (positive turn in image coordinates,
-    # y down) bends the curve away from the silhouette, i.e. a concave corner; convex parts turn the other way
+    # the outward normal is (-ty, tx): a tangent turning towards it (positive turn in image
+    # coordinates,
+    # y down) bends the curve away from the silhouette, i.e. a concave corner; convex parts turn
+    # the other way
     return np.clip(-0.5 * smoothing**2 * kappa, -0.5 * smoothing, 0.5 * smoothing)
 
 
@@ -126,7 +129,8 @@ def contour_rays(
     bias = smoothing_shift(table, smoothing)
     if shift:
         x, y = x + bias * outward[:, 0], y + bias * outward[:, 1]
-    # orient k out of the silhouette: the camera maps image orientation consistently, so one outward ray
+    # orient k out of the silhouette: the camera maps image orientation consistently, so one
+    # outward ray
     # (of a sample with a tangent) fixes the sign for all
     n = len(x)
     j = int(np.argmax(np.hypot(tx, ty))) if n else 0
@@ -164,7 +168,7 @@ class Candidates:
         return len(self.part)
 
     def subset(self, keep: np.ndarray) -> 'Candidates':
-        """The candidates selected by a mask or index array (these candidates themselves when a mask keeps all)."""
+        """Return the candidates selected by a mask or index array (these candidates themselves when a mask keeps all)."""
         if keep.dtype == bool and len(keep) == len(self) and keep.all():
             return self
         return Candidates(
@@ -210,7 +214,8 @@ def rig_outline_candidates(
     centre_local = _rotate(
         rotations.transpose(0, 2, 1)[None], centres[:, None] - origins
     )  # (K, P, 3) R^T (c - o)
-    # side: one node per ring and generator (the ring's nodes nearest the two generator lines, moved onto them)
+    # side: one node per ring and generator (the ring's nodes nearest the two generator lines,
+    # moved onto them)
     if keys is None:
         idx = np.tile(nodes.side_index, n_cams)
         sign = np.tile(nodes.side_sign, n_cams)
@@ -301,7 +306,7 @@ def _norm(a: np.ndarray) -> np.ndarray:
 def _outline_normals(
     view: np.ndarray, side: np.ndarray, cap: np.ndarray, rim: np.ndarray
 ) -> np.ndarray:
-    """Unit normal of the outline at each node, perpendicular to the viewing ray: the generator normal for
+    """Return unit normal of the outline at each node, perpendicular to the viewing ray: the generator normal for
     side nodes, and for rim nodes the direction of their fan (side to cap) that is perpendicular to the ray.
     """
     v = view / _norm(view)[:, None]
@@ -363,7 +368,8 @@ def ray_part_hits(
     )  # a ray not going ahead cannot meet a box in front
     pair = np.flatnonzero(near)
     ray, part = np.divmod(pair, n_parts)
-    # the exact test: rays and cylinders in the part frames, scaled so the cross-section is the unit circle
+    # the exact test: rays and cylinders in the part frames, scaled so the cross-section is the
+    # unit circle
     o = _rotate(
         rotations.transpose(0, 2, 1)[None], centres[:, None] - origins
     )  # (K, P, 3) ray origins
@@ -456,7 +462,7 @@ def rig_on_outline(
 def _generator(
     nodes: ModelNodes, centre_local: np.ndarray, idx: np.ndarray, sign: np.ndarray
 ) -> np.ndarray:
-    """Generator angle of the rings starting at idx, on the side ``sign`` (+1: phi + arccos, -1: phi - arccos),
+    """Return generator angle of the rings starting at idx, on the side ``sign`` (+1: phi + arccos, -1: phi - arccos),
     for the camera centre in each ring's part frame; NaN when the centre is inside the cylinder.
     """
     ux, uy = centre_local[:, 0] / nodes.a[idx], centre_local[:, 1] / nodes.b[idx]
@@ -504,8 +510,10 @@ def _nearest_compatible(
         rows = np.flatnonzero(idx < tree.n)
         ok = compatible(rows, idx[rows])
         return rows[ok], idx[rows[ok]], dist[rows[ok]]
-    # nearest targets are mostly far inside the gate: a search within a quarter of it visits less of the tree,
-    # and the rows with nothing that near are searched again within the whole gate (the same two neighbours)
+    # nearest targets are mostly far inside the gate: a search within a quarter of it visits less
+    # of the tree,
+    # and the rows with nothing that near are searched again within the whole gate (the same two
+    # neighbours)
     dist, idx = tree.query(queries, k=2, distance_upper_bound=0.25 * gate_px)
     far = np.flatnonzero(idx[:, 0] == tree.n)
     if len(far):

@@ -81,7 +81,7 @@ class ArticulatedEKF:
         gate: float = 4.0,
         tolerance: float = 1e-5,
     ) -> UpdateReport:
-        """Iterated update (eq. 11): relinearise ``measure`` at each iterate, gate, solve in information form."""
+        """Run the iterated update (eq. 11): relinearise ``measure`` at each iterate, gate, solve in information form."""
         n = self.n
         q0, v0, P0 = self.q, self.v, self.P
         info0 = np.linalg.inv(P0)

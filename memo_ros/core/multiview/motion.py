@@ -27,7 +27,7 @@ EXTRA_STATE_NAMES = ('gait_phase',)  # JointState entries that are not body coor
 
 
 def rotation_groups(body: Body) -> np.ndarray:
-    """Indices (G, 3) of the rotation-vector triples in ``q``: the root's and every ball joint's."""
+    """Return indices (G, 3) of the rotation-vector triples in ``q``: the root's and every ball joint's."""
     starts = [body.coordinate_index('root_rx')]
     starts += [body.coordinate_index(f'{j.name}_x') for j in body.joints if j.axes == 'ball']
     return np.array(starts, int)[:, None] + np.arange(3)
@@ -61,7 +61,7 @@ def retract(q: np.ndarray, delta: np.ndarray, groups: np.ndarray) -> np.ndarray:
 
 
 def local_difference(q_to: np.ndarray, q_from: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """The increment delta with q_from (+) delta = q_to (inverse of :func:`retract`)."""
+    """Return the increment delta with q_from (+) delta = q_to (inverse of :func:`retract`)."""
     q_to, q_from = np.asarray(q_to, float), np.asarray(q_from, float)
     out = q_to - q_from
     r_to, r_from = rotvec_to_matrix(q_to[..., groups]), rotvec_to_matrix(q_from[..., groups])
@@ -155,7 +155,7 @@ def named_values_problem(names: Sequence[str], values: Sequence[float] | np.ndar
 def coordinates_from_names(
     body: Body, names, values, default: np.ndarray | None = None
 ) -> np.ndarray:
-    """A coordinate vector from (name, value) pairs, unnamed ones from ``default`` (neutral); unknown names raise KeyError."""
+    """Return a coordinate vector from (name, value) pairs, unnamed ones from ``default`` (neutral); unknown names raise KeyError."""
     q = np.array(default if default is not None else body.neutral(), float)
     index = {n: i for i, n in enumerate(body.coordinate_names)}
     for name, value in zip(names, values):

@@ -106,7 +106,7 @@ class Assignment:
             self.rank = rank_selected(self.selected, self.observability, self.vi)
 
     def cameras_for(self, part_index: int) -> list[str]:
-        """The cameras selected for a part, best first."""
+        """Return the cameras selected for a part, best first."""
         row = self.rank[part_index]
         order = np.argsort(np.where(row < 0, len(self.cameras), row), kind='stable')
         return [self.cameras[k] for k in order if row[k] >= 0]
@@ -177,7 +177,7 @@ class ContourModel:
 
     @classmethod
     def from_body(cls, body: Body, spacing: float = 0.02, rim_nodes: int = 24) -> 'ContourModel':
-        """Generator heights every ``spacing`` m (cell centres) and ``rim_nodes`` around each cap rim."""
+        """Return generator heights every ``spacing`` m (cell centres) and ``rim_nodes`` around each cap rim."""
         counts = np.maximum(np.ceil(body.lengths / spacing).astype(int), 3)
         side_part = np.repeat(np.arange(len(body.lengths)), counts)
         starts = np.repeat(np.cumsum(counts) - counts, counts)
@@ -208,7 +208,8 @@ class ContourModel:
 
         ``cap`` is 0 for a node on a contour generator, -1 / +1 for a proximal / distal rim node.
         """
-        # side: n(theta) . (p(theta) - c) = 1 - rho cos(theta - phi) = 0 on the two contour generators
+        # side: n(theta) . (p(theta) - c) = 1 - rho cos(theta - phi) = 0 on the two contour
+        # generators
         a, b = self.semi_axes[:, 0], self.semi_axes[:, 1]
         ux, uy = centre_local[:, 0] / a, centre_local[:, 1] / b
         rho = np.hypot(ux, uy)
@@ -241,7 +242,7 @@ def occluding_contour(
     rendering: Rendering,
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The visible occluding-contour nodes P_i of every part (§4): parts (C,) and part-frame points (C, 3).
+    """Return the visible occluding-contour nodes P_i of every part (§4): parts (C,) and part-frame points (C, 3).
 
     A node lies on its part's silhouette edge, so its own pixel cannot tell
     whether something covers it.  It is tested one label-image pixel inside
@@ -333,7 +334,7 @@ class CameraSelector:
     def assign(
         self, q_prev: np.ndarray, q_pred: np.ndarray, alive: dict[str, bool] | None = None
     ) -> Assignment:
-        """Assignment for frame t from the posterior coordinates of t-1 and the prediction for t."""
+        """Return assignment for frame t from the posterior coordinates of t-1 and the prediction for t."""
         s = self.settings
         n_parts = len(self.body.lengths)
         rotations, origins = self.body.forward_kinematics(np.stack([q_prev, q_pred]))
@@ -396,7 +397,7 @@ class CameraLiveness:
     SOURCES = ('camera_info', 'contours')
 
     def seen(self, camera: str, stamp_ns: int, source: str, wall: float | None = None) -> None:
-        """A message of ``camera`` from ``source`` (camera_info or contours) with this header stamp arrived
+        """Return a message of ``camera`` from ``source`` (camera_info or contours) with this header stamp arrived
         (at monotonic ``wall`` time, now by default).
         """
         if source not in self.SOURCES:

@@ -165,7 +165,7 @@ class ArticulatedTracker:
         self.since_twin = 0  # frames since the twin was last followed
 
     def apply_settings(self, settings: TrackerSettings) -> None:
-        """New noises, gates and limits from the next frame on; the current estimate is kept."""
+        """Apply new noises, gates and limits from the next frame on; the current estimate is kept."""
         self.settings = settings
         self.model = ConstantVelocity(self.body, settings.process_noise)
         self.ekf.model = self.model

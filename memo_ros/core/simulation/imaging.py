@@ -64,7 +64,7 @@ class ImagingOptions:
 
 
 def background_image(camera: Camera, seed: int = 0) -> np.ndarray:
-    """A static textured background (float32 grey levels) for ``camera``: tiled floor and mottled wall."""
+    """Return a static textured background (float32 grey levels) for ``camera``: tiled floor and mottled wall."""
     rng = np.random.default_rng(seed)
     rays = camera.pixel_grid_rays(1.0)
     centre = np.asarray(camera.t_world_cam, float)

@@ -107,7 +107,7 @@ def arc_walk(
     cycle_length: float,
     phase0: float = 0.0,
 ) -> Trajectory:
-    """Walking counter-clockwise on a circle around the origin, heading along the tangent."""
+    """Return walking counter-clockwise on a circle around the origin, heading along the tangent."""
     walker = WalkingModel(body)
 
     def trajectory(t: np.ndarray):
@@ -124,7 +124,7 @@ def arc_walk(
 def line_walk(
     body: Body, start: float, speed: float, cycle_length: float, phase0: float = 0.0
 ) -> Trajectory:
-    """Walking along +x on the line y = 0 (Rohr's pedestrian)."""
+    """Return walking along +x on the line y = 0 (Rohr's pedestrian)."""
     walker = WalkingModel(body)
 
     def trajectory(t: np.ndarray):
@@ -195,8 +195,10 @@ def make_scenario(
 
 
 SCENARIOS = ('studio-arm', 'studio-walk', 'street-walk')
-# a studio session starts with the empty studio, so the background can be learnt before the subject enters
-# the street's walker_node (Rohr's MEMO): its presence in a studio file makes `memo-ros launch` start it
+# a studio session starts with the empty studio, so the background can be learnt before the subject
+# enters
+# the street's walker_node (Rohr's MEMO): its presence in a studio file makes `memo-ros launch`
+# start it
 WALKER_PARAMETERS = {'init_first': 2, 'init_last': 14}
 STUDIO_EMPTY_FRAMES = 10
 

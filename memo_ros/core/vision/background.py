@@ -51,8 +51,10 @@ from memo_ros.core.vision.change_detection import (
 from memo_ros.core.vision.cleanup import cleanup
 
 MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution per unit of median absolute deviation
-# sqrt(chi2 quantile 1 - 1e-6 with 6 dof per channel / (channels * n)): under noise alone, the summed
-# eq. (1) energy of C channels is sigma^2 chi2(6 C); one false pixel per 10^6 above this many sigmas
+# sqrt(chi2 quantile 1 - 1e-6 with 6 dof per channel / (channels * n)): under noise alone, the
+# summed
+# eq. (1) energy of C channels is sigma^2 chi2(6 C); one false pixel per 10^6 above this many
+# sigmas
 COLOUR_NOISE_FACTOR = {
     1: float(np.sqrt(38.26 / N_WINDOW)),
     3: float(np.sqrt(61.91 / (3 * N_WINDOW))),
@@ -78,7 +80,7 @@ class BackgroundModel:
         return self.seen == 0
 
     def copy(self) -> 'BackgroundModel':
-        """An independent copy (the live segmenter updates its model in place)."""
+        """Return an independent copy (the live segmenter updates its model in place)."""
         return BackgroundModel(self.image.copy(), self.sigma.copy(), self.seen.copy(), self.noise)
 
     def update(
@@ -110,7 +112,7 @@ class BackgroundModel:
 
 
 def as_channels(frame: np.ndarray) -> np.ndarray:
-    """An image as (H, W, C) uint8 (a grey (H, W) frame gets one channel)."""
+    """Return an image as (H, W, C) uint8 (a grey (H, W) frame gets one channel)."""
     frame = np.asarray(frame)
     if frame.dtype != np.uint8:
         raise ValueError(f'the background model takes uint8 images, got {frame.dtype}')
@@ -220,7 +222,7 @@ def with_fallback(
     fallback_count: np.ndarray,
     min_seen: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The median and count of ``fallback`` where ``image`` was seen fewer than ``min_seen`` times and it was not:
+    """Return the median and count of ``fallback`` where ``image`` was seen fewer than ``min_seen`` times and it was not:
     around a person who moves all the time, the motion patches and grown person masks exclude a ring in every
     frame, but the tracked body alone leaves it seen (inpainting would guess it, and flag it in every frame).
     """
@@ -229,7 +231,7 @@ def with_fallback(
 
 
 def fill_unseen(image: np.ndarray, unseen: np.ndarray, radius: int = 5) -> np.ndarray:
-    """The background with its unseen pixels inpainted from the seen ones around them (Telea)."""
+    """Return the background with its unseen pixels inpainted from the seen ones around them (Telea)."""
     if not unseen.any():
         return image
     if unseen.all():
@@ -321,7 +323,7 @@ def estimate_background(
     exclude_margin: int = 4,
     known_person: np.ndarray | None = None,
 ) -> BackgroundModel:
-    """The background of a sequence that never shows it empty (see the module docstring), from (K, H, W[, C]).
+    """Return the background of a sequence that never shows it empty (see the module docstring), from (K, H, W[, C]).
 
     ``known_person`` (K, H, W) bool: where the person is known to be in each frame (the tracked body's
     projection), never learnt from, however still he stands there.
@@ -460,7 +462,7 @@ class SequenceSegmenter:
 
 # ------------------------------------------------------------------ images
 def evenly_spaced(count: int, most: int) -> np.ndarray:
-    """Indices of at most ``most`` items spread evenly over ``count`` (all of them when there are fewer)."""
+    """Return indices of at most ``most`` items spread evenly over ``count`` (all of them when there are fewer)."""
     if count <= most:
         return np.arange(count)
     return np.unique(np.round(np.linspace(0, count - 1, most)).astype(int))

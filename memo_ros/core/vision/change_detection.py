@@ -123,7 +123,8 @@ def change_mask(
 
 
 # chi-square quantiles with 6 degrees of freedom: under pure noise of sigma_d per pixel,
-# n * statistic^2 / sigma_d^2 = ||X X* d||^2 / sigma_d^2 is chi-square(6) (projection onto 6 dimensions)
+# n * statistic^2 / sigma_d^2 = ||X X* d||^2 / sigma_d^2 is chi-square(6) (projection onto 6
+# dimensions)
 _CHI2_6_Q25 = 3.4546  # 25th percentile, for the noise estimate
 NOISE_FACTOR = (
     1.25  # sqrt(chi2_6 quantile 1 - 1e-6 = 38.26) / 5: one false pixel per 10^6 under noise
@@ -206,6 +207,6 @@ class ChangeDetector:
         return result
 
     def update(self, frame: np.ndarray) -> np.ndarray | None:
-        """Changed pixels of ``frame`` against the previous frame (bool, valid until the next call), None at first."""
+        """Return the changed pixels of ``frame`` against the previous frame (bool, valid until the next call), None at first."""
         result = self.detect(frame)
         return None if result is None else result.mask

@@ -60,14 +60,14 @@ def resample_closed(points: np.ndarray, step: float) -> np.ndarray:
 
 
 def _orient_ccw_on_screen(p: np.ndarray) -> np.ndarray:
-    """The same closed polyline, reversed if needed so that its shoelace area (y down) is negative."""
+    """Return the same closed polyline, reversed if needed so that its shoelace area (y down) is negative."""
     x, y = p[:, 0], p[:, 1]
     area2 = np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)
     return p[::-1].copy() if area2 > 0 else p
 
 
 def _polygon_tangents(p: np.ndarray) -> np.ndarray:
-    """Unit tangents of a closed polyline by central differences (zeros where undefined)."""
+    """Return unit tangents of a closed polyline by central differences (zeros where undefined)."""
     d = np.roll(p, -1, axis=0) - np.roll(p, 1, axis=0)
     norm = np.hypot(d[:, 0], d[:, 1])
     return np.where(norm[:, None] > 0, d / np.maximum(norm, 1e-12)[:, None], 0.0)
@@ -76,11 +76,14 @@ def _polygon_tangents(p: np.ndarray) -> np.ndarray:
 def smooth_closed_contour(
     outline: np.ndarray, step: float = 2.0, smoothing: float = 2.0, offset: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Samples (M, 2) of a closed outline every ``step`` px, low-passed along its arc, and unit tangents (M, 2)."""
-    # ``offset`` moves the samples along the outward normal (-ty, tx): 0.5 px takes the centres of a
+    """Return samples (M, 2) of a closed outline every ``step`` px, low-passed along its arc, and unit tangents (M, 2)."""
+    # ``offset`` moves the samples along the outward normal (-ty, tx): 0.5 px takes the centres of
+    # a
     # region's boundary pixels to the pixel edges, where the silhouette's boundary lies.
-    # The closed curve is the Fourier series of the uniformly resampled outline z(s) = x(s) + i y(s)
-    # with every harmonic damped by a Gaussian of standard deviation ``smoothing`` px of arc length:
+    # The closed curve is the Fourier series of the uniformly resampled outline z(s) = x(s) + i
+    # y(s)
+    # with every harmonic damped by a Gaussian of standard deviation ``smoothing`` px of arc
+    # length:
     # a smooth, differentiable closed model of the contour; its derivative dz/ds (harmonics times
     # 2 pi i f) is evaluated analytically at the same samples and normalised to the tangent.
     samples = resample_closed(outline, step)
@@ -107,7 +110,7 @@ def smooth_closed_contour(
 
 
 def _respace(xy: np.ndarray, tangent: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Samples of a smooth closed curve moved to spacing ``step`` along its own arc (the pixel staircase was longer)."""
+    """Return samples of a smooth closed curve moved to spacing ``step`` along its own arc (the pixel staircase was longer)."""
     closed_xy = np.vstack([xy, xy[:1]])
     closed_t = np.vstack([tangent, tangent[:1]])
     arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(closed_xy, axis=0).T))])
@@ -192,7 +195,7 @@ class ContourPipeline:
     STAGES = ('segment', 'cleanup', 'contours', 'edges')
 
     def __init__(self, settings: PipelineSettings | None = None, **overrides) -> None:
-        """Settings as a :class:`PipelineSettings` and/or keyword overrides of its fields."""
+        """Return settings as a :class:`PipelineSettings` and/or keyword overrides of its fields."""
         settings = replace(settings or PipelineSettings(), **overrides)
         if settings.contour_step <= 0:
             raise ValueError(f'contour_step must be positive, got {settings.contour_step}')

@@ -39,7 +39,7 @@ EDGE_DTYPE = np.dtype(
 def _roi(
     box: tuple[int, int, int, int] | None, margin: int, shape: tuple[int, int]
 ) -> tuple[int, int, int, int]:
-    """The rectangle (x0, y0, x1, y1) of ``box`` grown by ``margin`` and clipped to the image."""
+    """Return the rectangle (x0, y0, x1, y1) of ``box`` grown by ``margin`` and clipped to the image."""
     height, width = shape
     if box is None:
         return 0, 0, width, height
@@ -77,7 +77,7 @@ def _closed_chains(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> 
 def _loop_vertices(
     points: np.ndarray, chain: np.ndarray, tolerance: float
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
-    """Closed chains rotated to start at a corner and closed on it, with their closed-polygon vertices."""
+    """Return the closed chains rotated to start at a corner and closed on it, with their closed-polygon vertices."""
     starts = np.flatnonzero(np.r_[True, chain[1:] != chain[:-1]])
     ends = np.r_[starts[1:], len(points)]
     closed = np.flatnonzero(_closed_chains(points, starts, ends))
@@ -103,7 +103,8 @@ def split_chains(
     points: np.ndarray, chain: np.ndarray, tolerance: float, shape: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Douglas-Peucker split of contiguous chains: points with inner vertices doubled, piece and chain ids."""
-    # recursive splitting at the farthest point (cv2.approxPolyDP) per chain; the vertices are chain
+    # recursive splitting at the farthest point (cv2.approxPolyDP) per chain; the vertices are
+    # chain
     # pixels, located through an image of positions; a vertex ends one piece and starts the next.
     # A loop is split as a closed polygon, starting and ending at one of its corners.
     points, chain, loops = _loop_vertices(points, chain, tolerance)

@@ -31,7 +31,7 @@ class ImageFormatError(ValueError):
 def image_to_array(
     encoding: str, height: int, width: int, step: int, data, is_bigendian: int = 0
 ) -> np.ndarray:
-    """The pixels as (H, W) or (H, W, C) without copying where possible."""
+    """Return the pixels as (H, W) or (H, W, C) without copying where possible."""
     if encoding not in ENCODINGS:
         raise ImageFormatError(
             'unsupported_encoding',

@@ -45,8 +45,10 @@ from memo_ros.core.vision.cleanup import cleanup
 SEGMENTERS = ('background', 'change', 'sequence')
 KEEP_MODES = ('largest', 'all', 'tracked')
 _EMPTY_OUTLINE = np.zeros((0, 2), np.int32)
-PIXEL_FLOOR = 0.5  # grey levels: a pixel differing by less is unchanged even in noise-free frames (uint8 steps)
-EXACT_FILL_ABOVE = 7  # cleanup k2 for exact frames: fill pinholes only (a 1 px slit's closed end has 7 neighbours)
+# grey levels: a pixel differing by less is unchanged even in noise-free frames (uint8 steps)
+PIXEL_FLOOR = 0.5
+# cleanup k2 for exact frames: fill pinholes only (a 1 px slit's closed end has 7 neighbours)
+EXACT_FILL_ABOVE = 7
 
 
 # ------------------------------------------------------------------ regions
@@ -107,7 +109,7 @@ def select_regions(
 
 
 def union_box(regions: list[Region]) -> tuple[int, int, int, int] | None:
-    """The rectangle (x, y, w, h) enclosing every region, None without regions."""
+    """Return the rectangle (x, y, w, h) enclosing every region, None without regions."""
     if not regions:
         return None
     boxes = np.array([r.box for r in regions])
@@ -178,7 +180,7 @@ class BackgroundSegmenter:
         self._learning, self._count = None, 0
 
     def _reference(self, grey: np.ndarray) -> np.ndarray:
-        """The background, scaled by the frame's global gain (slow lighting changes) when that is on."""
+        """Return the background, scaled by the frame's global gain (slow lighting changes) when that is on."""
         if not self.compensate_gain:
             return self.background
         sample_bg = self.background[::8, ::8].astype(np.float32)
@@ -207,7 +209,8 @@ class BackgroundSegmenter:
         self._learning[self._count] = grey
         self._count += 1
         if self._count == self.learn_frames:
-            # per-pixel median: a person covering a pixel in fewer than half the frames is voted out
+            # per-pixel median: a person covering a pixel in fewer than half the frames is voted
+            # out
             self.background = np.median(self._learning, axis=0).round().astype(np.uint8)
             self._learning = None
         return None
@@ -221,8 +224,10 @@ def refine_boundary(
     depth: int = 2,
 ) -> np.ndarray:
     """Undo eq. (1)'s 2 px spread: keep the filled core, and near its edge only pixels whose own |d| is large."""
-    # The 5x5 fit flags pixels up to 2 px outside a strong step edge; the core (filled mask eroded by
-    # ``depth``) lies inside, the band around it is decided per pixel: raw flag and |g_k - g_j| > t.
+    # The 5x5 fit flags pixels up to 2 px outside a strong step edge; the core (filled mask eroded
+    # by
+    # ``depth``) lies inside, the band around it is decided per pixel: raw flag and |g_k - g_j| >
+    # t.
     size = 2 * depth + 1
     core = cv2.erode(
         filled.view(np.uint8),
@@ -243,9 +248,12 @@ def carve_background_channels(
     mask: np.ndarray, difference: np.ndarray, pixel_threshold: float
 ) -> np.ndarray:
     """Remove from ``mask`` the unchanged pixels (|d| <= t) that connect 4-wise to the outside (bool)."""
-    # The 5x5 fit of eq. (1) spreads 2 px from either side of a gap, so a slit up to 4 px wide (an arm
-    # hanging next to the trunk) is flagged in full and is no band pixel of refine_boundary.  Where the
-    # per-pixel test is exact (noise-free frames) the background reaching in through the slit is removed;
+    # The 5x5 fit of eq. (1) spreads 2 px from either side of a gap, so a slit up to 4 px wide (an
+    # arm
+    # hanging next to the trunk) is flagged in full and is no band pixel of refine_boundary.  Where
+    # the
+    # per-pixel test is exact (noise-free frames) the background reaching in through the slit is
+    # removed;
     # unchanged pixels enclosed by the person (a part with the background's grey) stay.
     unchanged = cv2.compare(
         cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_LE
@@ -306,7 +314,7 @@ class Segmenter:
     """Raw mask by the named segmenter, then cleanup, boundary refinement and region selection."""
 
     def __init__(self, settings: SegmenterSettings | None = None, **overrides) -> None:
-        """Settings as a :class:`SegmenterSettings` and/or keyword overrides of its fields."""
+        """Return settings as a :class:`SegmenterSettings` and/or keyword overrides of its fields."""
         settings = replace(settings or SegmenterSettings(), **overrides)
         if settings.segmenter not in SEGMENTERS:
             raise ValueError(
@@ -348,13 +356,13 @@ class Segmenter:
         self.roi = None if roi is None else np.asarray(roi, bool)
 
     def raw(self, image: np.ndarray) -> ChangeResult | None:
-        """The segmenter's eq. (1) result (raw mask, difference, noise), None while warming up."""
+        """Return the segmenter's eq. (1) result (raw mask, difference, noise), None while warming up."""
         self._image = image
         self.last_change = self.method.segment(image)
         return self.last_change
 
     def _prior(self, shape: tuple[int, int]) -> np.ndarray | None:
-        """The tracked region: the body's projection, else the previous frame's person grown."""
+        """Return the tracked region: the body's projection, else the previous frame's person grown."""
         if self.roi is not None and self.roi.shape == shape:
             return self.roi
         if self.previous is None or self.previous.shape != shape or not self.previous.any():

@@ -94,7 +94,8 @@ def starting_state(
     k = np.array([e.image for e in estimates])
     X = np.array([e.X for e in estimates])
     slope_x, intercept_x = np.polyfit(k, X, 1)
-    # a gross outlier (a match on the wrong body half) must not tilt the line: refit without > 3 MAD
+    # a gross outlier (a match on the wrong body half) must not tilt the line: refit without > 3
+    # MAD
     residual = X - (intercept_x + slope_x * k)
     mad = np.median(np.abs(residual - np.median(residual))) + 1e-3
     keep = np.abs(residual) <= 3.0 * 1.4826 * mad

@@ -35,7 +35,7 @@ class BoxPosition:
 
 
 def projection_matrix(camera: Camera) -> np.ndarray:
-    """The 3x4 matrix T of eq. 2 (rows 1, 2, 4 of Rohr's 4x4) for ideal pixels: K [R^T | -R^T t]."""
+    """Return the 3x4 matrix T of eq. 2 (rows 1, 2, 4 of Rohr's 4x4) for ideal pixels: K [R^T | -R^T t]."""
     R = camera.R_world_cam
     return camera.K @ np.hstack([R.T, (-R.T @ camera.t_world_cam)[:, None]])
 

@@ -94,7 +94,8 @@ def contour_scores(
     n2 = (y2 - ay) * ux - (x2 - ax) * uy
     dt, dn = t2 - t1, n2 - n1
     L, R = length[:, contour], r[:, contour]
-    # cut the edge to the window 0 <= t <= l_M, |n| <= r: p * lambda <= q for each side (Liang-Barsky)
+    # cut the edge to the window 0 <= t <= l_M, |n| <= r: p * lambda <= q for each side
+    # (Liang-Barsky)
     lam_lo, lam_hi = np.zeros_like(t1), np.ones_like(t1)
     with np.errstate(divide='ignore', invalid='ignore'):
         for p, q in ((-dt, t1), (dt, L - t1), (-dn, R + n1), (dn, R - n1)):
@@ -145,7 +146,7 @@ def gradient_weights(edges: np.ndarray) -> np.ndarray:
 
 
 def edge_table(edges) -> np.ndarray:
-    """An EDGE_DTYPE record array (or an (E, >=4) array) as a float (E, 5) array x1, y1, x2, y2, magnitude."""
+    """Return an EDGE_DTYPE record array (or an (E, >=4) array) as a float (E, 5) array x1, y1, x2, y2, magnitude."""
     if getattr(edges, 'dtype', None) is not None and edges.dtype.names:
         return np.stack(
             [edges['x1'], edges['y1'], edges['x2'], edges['y2'], edges['magnitude']], 1

@@ -221,7 +221,8 @@ class WalkingTracker:
         half_x = np.clip(s.window_sigmas * sd[0], s.step_x, s.max_half_x)
         half_y = np.clip(s.window_sigmas * sd[2], s.step_y, s.max_half_y)
         half_pose = np.clip(s.window_sigmas * sd[6], s.step_pose, s.max_half_pose)
-        # centred on the prediction rounded to the pose lattice, so renderings carry over between frames
+        # centred on the prediction rounded to the pose lattice, so renderings carry over between
+        # frames
         poses = s.step_pose * np.round(p[6] / s.step_pose) + grid_offsets(half_pose, s.step_pose)
         found = self.model.search(
             edges,

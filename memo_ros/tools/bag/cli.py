@@ -41,7 +41,7 @@ def _count(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The info, play and record sub-commands and their options."""
+    """Return the info, play and record sub-commands and their options."""
     sub = parser.add_subparsers(dest='bag_command', metavar='{info,play,record}')
     sub.required = True
 

@@ -93,7 +93,7 @@ def format_stamp(stamp_ns: int) -> str:
 
 
 def format_size(size: int) -> str:
-    """A byte count for humans (KiB, MiB, ...)."""
+    """Return a byte count for humans (KiB, MiB, ...)."""
     value = float(size)
     for unit in ('B', 'KiB', 'MiB', 'GiB'):
         if value < 1024 or unit == 'GiB':
@@ -103,7 +103,7 @@ def format_size(size: int) -> str:
 
 
 def format_summary(summary: BagSummary) -> str:
-    """The text of ``bag info``, laid out like ``ros2 bag info``."""
+    """Return the text of ``bag info``, laid out like ``ros2 bag info``."""
     width = max([len(t.topic) for t in summary.topics] + [0])
     type_width = max([len(t.msgtype) for t in summary.topics] + [0])
     lines = [

@@ -114,7 +114,7 @@ class BagPlayer:
             raise BagError('QoS depth must be at least 1')
 
     def _select_connections(self) -> list[Connection]:
-        """The bag's connections on the requested topics (an error names requested topics the bag lacks)."""
+        """Return the bag's connections on the requested topics (an error names requested topics the bag lacks)."""
         connections = self.reader.connections
         if self.options.topics is not None:
             wanted = {absolute_topic(t) for t in self.options.topics}
@@ -128,7 +128,7 @@ class BagPlayer:
         return connections
 
     def _create_publishers(self) -> tuple[dict[int, object], dict[str, str]]:
-        """A publisher per published topic, keyed by connection id; and published topic -> type."""
+        """Return a publisher per published topic, keyed by connection id; and published topic -> type."""
         qos = qos_profile(
             self.options.reliability, self.options.qos_depth, self.options.durability
         )
@@ -166,7 +166,7 @@ class BagPlayer:
         return self.reader.end_time - 1
 
     def unmatched_topics(self) -> list[str]:
-        """Published topics with fewer matched subscriptions than ``options.wait_for_subscribers``."""
+        """Return the published topics with fewer matched subscriptions than ``options.wait_for_subscribers``."""
         need = self.options.wait_for_subscribers
         seen = {}
         for publisher in self.publishers.values():
@@ -189,7 +189,7 @@ class BagPlayer:
         return missing
 
     def _messages(self) -> Iterator[tuple[Connection, int, bytes]]:
-        """The selected messages from the start offset on, in log-time order."""
+        """Return the selected messages from the start offset on, in log-time order."""
         if not self.connections:
             return iter(())
         return self.reader.messages(connections=self.connections, start=self.start_ns)
@@ -289,7 +289,8 @@ def run_play(args: argparse.Namespace) -> int:
         wait_timeout=args.wait_timeout,
     )
     status = StatusLine(progress_enabled(args))
-    # one process publishing every camera's images needs more than Fast DDS's 512 KiB shared-memory segment
+    # one process publishing every camera's images needs more than Fast DDS's 512 KiB shared-memory
+    # segment
     with (
         tempfile.TemporaryDirectory(prefix='memo_bag_play_') as tmp,
         player_segment(PLAYER_SEGMENT_BYTES, tmp),

@@ -47,7 +47,7 @@ ALL_TOPICS_PERIOD = 0.5  # seconds between two looks at the graph with --all
 
 
 def rosbags_qos(profile) -> Qos:
-    """An rclpy QoSProfile (as offered by a publisher) as the rosbags Qos written into the metadata."""
+    """Return an rclpy QoSProfile (as offered by a publisher) as the rosbags Qos written into the metadata."""
 
     def duration(value) -> QosTime:
         ns = value.nanoseconds
@@ -75,7 +75,7 @@ def rosbags_qos(profile) -> Qos:
 
 
 def is_hidden(topic: str) -> bool:
-    """True for hidden topics (a name component starting with '_'), which --all leaves out like ros2 bag."""
+    """Return True for hidden topics (a name component starting with '_'), which --all leaves out like ros2 bag."""
     return any(part.startswith('_') for part in topic.split('/'))
 
 
@@ -202,7 +202,7 @@ class BagRecorder:
         return None
 
     def _callback(self, topic: str, connection: Connection) -> Callable[[bytes, dict], None]:
-        """The subscription callback writing ``topic``'s bytes with their receive time."""
+        """Return the subscription callback writing ``topic``'s bytes with their receive time."""
 
         def on_message(data: bytes, info: dict) -> None:
             if self.done or self._closed:

@@ -116,7 +116,7 @@ def _suite(name: str):
 
 
 def command_line(args: argparse.Namespace) -> str:
-    """The command line that reproduces this run."""
+    """Return the command line that reproduces this run."""
     if args.suite == 'graph':
         options = bench_graph.command_words(args)
     else:

@@ -158,7 +158,8 @@ def run_case(
                     for thread in threads:
                         thread.join()
                 play_end = time.monotonic()
-                # drain: until no contours for IDLE_END s and a diagnostics report sent after that quiet moment
+                # drain: until no contours for IDLE_END s and a diagnostics report sent after that
+                # quiet moment
                 deadline = play_end + DRAIN_TIMEOUT
                 while time.monotonic() < deadline:
                     executor.spin_once(timeout_sec=0.05)
@@ -203,7 +204,7 @@ def _figures(
     peak_rss: float | None,
     values: dict,
 ) -> dict:
-    """The case's figures from the arrival times and the node's last diagnostics."""
+    """Return the case's figures from the arrival times and the node's last diagnostics."""
 
     def as_int(key: str) -> int | None:
         return int(values[key]) if key in values else None

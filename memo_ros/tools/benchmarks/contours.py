@@ -33,7 +33,7 @@ STAGES = ('convert', 'segment', 'cleanup', 'contours', 'edges')
 
 
 def _frames(bag: Path) -> list[tuple]:
-    """The camera's image messages as (encoding, height, width, step, data, is_bigendian) tuples."""
+    """Return the camera's image messages as (encoding, height, width, step, data, is_bigendian) tuples."""
     from memo_ros.ros.bagio import read_messages
 
     frames = []
@@ -124,7 +124,7 @@ def run_contour_benchmark(
 
 
 def print_contour_benchmark(report: dict) -> None:
-    """The benchmark as a table: one row per encoding x segmenter, median (p90) ms per stage."""
+    """Return the benchmark as a table: one row per encoding x segmenter, median (p90) ms per stage."""
     width, height = report['size']
     print(
         f'contour pipeline, {report["scenario"]} {report["camera"]} {width}x{height}, '

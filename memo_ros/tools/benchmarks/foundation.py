@@ -39,7 +39,7 @@ SIM_STAGES = {
 
 
 def benchmark_poses(body) -> dict[str, np.ndarray]:
-    """A walking pose (mid-stride on the studio's arc) and an arm pose (arm raised, elbow bent)."""
+    """Return a walking pose (mid-stride on the studio's arc) and an arm pose (arm raised, elbow bent)."""
     from memo_ros.core.simulation.scenarios import make_scenario
 
     walk, _ = make_scenario('studio-walk', body).coordinates(np.array([0.35]))

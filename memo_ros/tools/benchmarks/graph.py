@@ -77,7 +77,7 @@ DIAGNOSTICS_WAIT = 3.0  # s for every node's diagnostics after the drain (they c
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The graph suite's options (on the benchmark command's parser)."""
+    """Return the graph suite's options (on the benchmark command's parser)."""
     parser.add_argument(
         '--rates',
         default=','.join(f'{r:g}' for r in RATES),
@@ -111,7 +111,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def command_words(args: argparse.Namespace) -> list[str]:
-    """This suite's options as command-line words (for the report's command line)."""
+    """Return this suite's options as command-line words (for the report's command line)."""
     words = ['--rates', args.rates, '--warmup', str(args.warmup)] + (
         ['--loops', str(args.loops)] if args.loops > 1 else []
     )
@@ -127,7 +127,7 @@ def parse_rates(text: str) -> list[float]:
 
 
 def measure(args: argparse.Namespace) -> dict:
-    """The suite's figures for ``memo-ros benchmark graph`` (user errors as CliError)."""
+    """Return the suite's figures for ``memo-ros benchmark graph`` (user errors as CliError)."""
     from memo_ros.tools.cli import CliError
 
     try:

@@ -104,7 +104,8 @@ def rate_figures(
         },
         'e2e_drift_ms': float(np.median(e2e[-tenth:]) - np.median(e2e[:tenth])) if e2e else None,
         'outputs_without_frame': probe.unknown,
-        'per_frame': {  # every timed frame, for plots: bag index, tracker outcome, latencies (ms, None: none)
+        # every timed frame, for plots: bag index, tracker outcome, latencies (ms, None: none)
+        'per_frame': {
             'index': [t.index for t in timed],
             'outcome': [t.outcome for t in timed],
             'contours_ms': [
@@ -128,7 +129,8 @@ def rate_figures(
     per_frame = [
         p['cpu_ms_per_frame'] for p in result['processes'] if p['process'] in result['nodes']
     ]
-    # what one frame costs when every node handles it: the CPU the rate needs, whatever the machine's load
+    # what one frame costs when every node handles it: the CPU the rate needs, whatever the
+    # machine's load
     result['nodes_cpu_ms_per_frame'] = (
         float(sum(per_frame)) if per_frame and None not in per_frame else None
     )
@@ -137,7 +139,7 @@ def rate_figures(
 
 
 def _frames_handled(timed: list[FrameTrace], cameras: list[str]) -> dict[str, int]:
-    """Timed frames each node worked on: contours published, assignments published, frames tracked (not
+    """Time frames each node worked on: contours published, assignments published, frames tracked (not
     skipped or late).
     """
     handled = {f'{c}/contour_node': sum(c in t.contours for t in timed) for c in cameras}
@@ -211,7 +213,7 @@ def _node_figures(
 
 
 def target_check(r: dict) -> dict | None:
-    """The issue's target for this rate, and whether this run met it (None for rates without one)."""
+    """Return the issue's target for this rate, and whether this run met it (None for rates without one)."""
     target = TARGETS.get(r['rate_hz'])
     if target is None or not r['timed_frames']:
         return None

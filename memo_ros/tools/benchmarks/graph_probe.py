@@ -18,14 +18,14 @@ PROCESSED_TOPIC = '/memo/processed'
 
 
 def header_stamp_ns(cdr: bytes) -> int:
-    """The header stamp of a serialized message that starts with a std_msgs/Header."""
+    """Return the header stamp of a serialized message that starts with a std_msgs/Header."""
     endian = '<' if cdr[1] & 1 else '>'  # CDR encapsulation: 0x0001 little, 0x0000 big endian
     sec, nanosec = struct.unpack_from(endian + 'iI', cdr, 4)
     return sec * 1_000_000_000 + nanosec
 
 
 def restamped(cdr: bytes, stamp_ns: int) -> bytes:
-    """The serialized message with its header stamp replaced (the stamp follows the 4-byte encapsulation)."""
+    """Return the serialized message with its header stamp replaced (the stamp follows the 4-byte encapsulation)."""
     endian = '<' if cdr[1] & 1 else '>'
     sec, nanosec = divmod(stamp_ns, 1_000_000_000)
     return cdr[:4] + struct.pack(endian + 'iI', sec, nanosec) + cdr[12:]

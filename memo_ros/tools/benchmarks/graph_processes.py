@@ -47,12 +47,13 @@ def start_graph(studio_file: Path, env: dict, log: Path) -> subprocess.Popen:
 
 
 def wait_for_nodes(launch: subprocess.Popen, expected: int, log: Path) -> dict[int, str]:
-    """The launcher's node processes (pid -> label), once all ``expected`` run."""
+    """Return the launcher's node processes (pid -> label), once all ``expected`` run."""
     from memo_ros.tools.cli import CliError
 
     deadline = time.monotonic() + GRAPH_TIMEOUT
     while True:
-        # a child just forked still shows the launcher's command line until it execs its node: wait for that
+        # a child just forked still shows the launcher's command line until it execs its node: wait
+        # for that
         nodes = {
             pid: node_label(command)
             for pid, command in children(launch.pid).items()

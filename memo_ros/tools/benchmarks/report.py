@@ -11,7 +11,7 @@ import numpy as np
 
 
 def with_command(show):
-    """A report printer that first prints the command line that produced the report."""
+    """Return a report printer that first prints the command line that produced the report."""
 
     def printer(report: dict) -> None:
         print(f'command  {report["command"]}')

@@ -144,7 +144,7 @@ def run_walker_benchmark(repeat: int = 2) -> dict:
 
 
 def print_walker_benchmark(report: dict) -> None:
-    """The figures as a small table."""
+    """Return the figures as a small table."""
     r = report
     print(
         f'walker on {r["scenario"]} {r["size"]}, {r["frames"]} frames, {r["repeat"]} passes, one core'
