@@ -97,7 +97,8 @@ def generate_launch_description():
             DeclareLaunchArgument(
                 'reliable_images',
                 default_value='false',
-                description='bag replay: subscribe images reliably instead of best effort, and let '
+                description='bag replay: subscribe images reliably instead of best effort, and '
+                'let '
                 "the tracker wait 3 s for a frame's contours",
             ),
             DeclareLaunchArgument(

@@ -1,4 +1,7 @@
-"""Shared fixtures: an isolated DDS environment per test and a runner for `memo-ros` in subprocesses."""
+"""Shared fixtures.
+
+An isolated DDS environment per test and a runner for `memo-ros` in subprocesses.
+"""
 
 from __future__ import annotations
 
@@ -15,12 +18,18 @@ _serial = itertools.count()
 
 
 def next_domain_id() -> int:
-    """Return a ROS_DOMAIN_ID in 1..100, different for each test of a run and offset by the pid across runs."""
+    """Return a ROS_DOMAIN_ID in 1..100.
+
+    Different for each test of a run and offset by the pid across runs.
+    """
     return 1 + (os.getpid() + next(_serial)) % 100
 
 
 class RosEnv(dict):
-    """Environment for DDS subprocesses (a dict), with helpers that run `memo-ros` in it and clean up."""
+    """Environment for DDS subprocesses (a dict).
+
+    With helpers that run `memo-ros` in it and clean up.
+    """
 
     def __init__(self, domain_id: int) -> None:
         super().__init__(os.environ)
@@ -50,7 +59,10 @@ class RosEnv(dict):
         return process
 
     def start_node(self, node: str, *ros_args: str) -> subprocess.Popen:
-        """Start ``python -m memo_ros.nodes.NODE --ros-args ROS_ARGS`` (stdout and stderr merged, as text)."""
+        """Start ``python -m memo_ros.nodes.NODE --ros-args ROS_ARGS``.
+
+        Stdout and stderr merged, as text.
+        """
         process = subprocess.Popen(
             [sys.executable, '-m', f'memo_ros.nodes.{node}', '--ros-args', *map(str, ros_args)],
             env=self,
@@ -85,7 +97,10 @@ class RosEnv(dict):
 
 @pytest.fixture
 def ros_env(monkeypatch) -> RosEnv:
-    """Return a fresh DDS domain on localhost, for this process (in-test nodes) and for subprocesses."""
+    """Return a fresh DDS domain on localhost.
+
+    For this process (in-test nodes) and for subprocesses.
+    """
     env = RosEnv(next_domain_id())
     monkeypatch.setenv('ROS_DOMAIN_ID', str(env.domain_id))
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')

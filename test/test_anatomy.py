@@ -1,4 +1,7 @@
-"""The body's asymmetric cues: joint ranges, the mirror twin, and a tracker that picks the right one."""
+"""The body's asymmetric cues.
+
+Joint ranges, the mirror twin, and a tracker that picks the right one.
+"""
 
 from __future__ import annotations
 

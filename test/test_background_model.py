@@ -1,4 +1,7 @@
-"""The sequence background (no empty frame), its colour comparison, its live learning, and tracked regions."""
+"""The sequence background (no empty frame), its colour comparison, its live learning.
+
+And tracked regions.
+"""
 
 import cv2
 import numpy as np
@@ -43,7 +46,10 @@ def person_mask(cx: float, cy: float, sway: float) -> np.ndarray:
 
 
 def sequence(frames: int = 60, noise: float = 1.5, seed: int = 1):
-    """Frames of a person who stands near the middle most of the time and wanders off, and his masks."""
+    """Frames of a person who stands near the middle most of the time and wanders off.
+
+    And his masks.
+    """
     rng = np.random.default_rng(seed)
     bg = scene()
     skin = np.array([90, 120, 200], np.float32)

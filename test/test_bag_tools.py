@@ -105,7 +105,10 @@ def _contours(stamp_ns: int):
 
 
 def write_test_bag(path, storage=StoragePlugin.MCAP) -> dict[str, list[bytes]]:
-    """Return a small bag of every kind of message the graph uses; the serialized bytes per topic, in order."""
+    """Return a small bag of every kind of message the graph uses.
+
+    The serialized bytes per topic, in order.
+    """
     messages = [('/cam/camera_info', _camera_info(START_NS))]
     for i in range(3):
         messages.append(('/cam/image_raw', _image(START_NS + i * STEP_NS, i)))

@@ -1,4 +1,7 @@
-"""`memo-ros benchmark graph` on a tiny bag: the report has every figure with sane values (no timing asserted)."""
+"""`memo-ros benchmark graph` on a tiny bag.
+
+The report has every figure with sane values (no timing asserted).
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,7 @@
-"""Calibration readers and writers: round trips, other tools' documented layouts, the real Qualisys file."""
+"""Calibration readers and writers.
+
+Round trips, other tools' documented layouts, the real Qualisys file.
+"""
 
 from pathlib import Path
 import xml.etree.ElementTree as ET
@@ -124,7 +127,10 @@ def test_formats_without_rational_model_refuse_it(tmp_path, fmt):
 # ---------------------------------------------------------------- the real Qualisys file, read by
 # the README's recipe
 def pose2sim_reading(path: Path) -> list[dict]:
-    """Return the README's recipe, written out independently: size, K, D (k1 k2 p1 p2), world-to-camera rvec, tvec."""
+    """Return the README's recipe, written out independently.
+
+    Size, K, D (k1 k2 p1 p2), world-to-camera rvec, tvec.
+    """
     cams = []
     for cam in ET.parse(path).getroot().iter('camera'):
         fov, intr, tr = (
@@ -355,7 +361,8 @@ def test_ros_camera_calibration_with_poses(tmp_path):
     # Rz(-90deg)
     s = float(np.sqrt(0.5))
     (tmp_path / 'poses.yaml').write_text(
-        f'cameras:\n  narrow_stereo: {{position: [0.0, 0.0, -2.0], orientation: [0.0, 0.0, {-s!r}, {s!r}]}}\n'
+        f'cameras:\n  narrow_stereo: {{position: [0.0, 0.0, -2.0], orientation: [0.0, 0.0, '
+        f'{-s!r}, {s!r}]}}\n'
     )
     for path in (tmp_path, tmp_path / 'poses.yaml', tmp_path / 'narrow_stereo.yaml'):
         assert detect_format(path) == 'ros'

@@ -1,4 +1,7 @@
-"""The contour pipeline, configured as the simulator's studio file configures contour_node, on its bags."""
+"""The contour pipeline, configured as the simulator's studio file configures contour_node.
+
+On its bags.
+"""
 
 from __future__ import annotations
 

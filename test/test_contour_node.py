@@ -1,4 +1,7 @@
-"""contour_node as its own process over real DDS: a bag played in, contours recorded out; bad input survived."""
+"""contour_node as its own process over real DDS.
+
+a bag played in, contours recorded out; bad input survived.
+"""
 
 from __future__ import annotations
 
@@ -22,7 +25,10 @@ def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
 
 
 def _wait_for_graph(ros_env, topics, timeout=20.0):
-    """Until the node publishes and the recorder subscribes every topic, as seen from a third participant."""
+    """Until the node publishes and the recorder subscribes every topic.
+
+    As seen from a third participant.
+    """
     with ros_session('graph_probe', ros_env.domain_id) as (node, _):
         deadline = time.monotonic() + timeout
         while not all(node.count_publishers(t) and node.count_subscribers(t) for t in topics):
@@ -185,7 +191,10 @@ def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_backgroun
         return msg
 
     def run_node(frames, first_sec: int) -> tuple[dict, list]:
-        """Start the node, feed (pixels or None for a lost image) frames with a camera_info each, stop it."""
+        """Start the node, feed (pixels or None for a lost image) frames with a camera_info each.
+
+        Stop it.
+        """
         process = _start_node(ros_env, 'cam_bg', *params)
         values: dict[str, str] = {}
         contours = []

@@ -50,7 +50,10 @@ def sample(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def check_contours(table: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
-    """Median distance to the true boundary, median |cos| tangent vs boundary normal, median outward agreement."""
+    """Median distance to the true boundary, median |cos| tangent vs boundary normal.
+
+    Median outward agreement.
+    """
     phi = signed_distance(truth)
     distance = np.abs(sample(phi, table['x'], table['y']))
     smooth = cv2.GaussianBlur(phi, (0, 0), 1.5)
@@ -212,7 +215,8 @@ def test_contours_of_simulated_frames_lie_on_the_true_silhouette(studio_frames):
             distance, across, outward = check_contours(result.contours, t)
             print(
                 f'{name}: median distance {distance:.2f} px, |cos(tangent, normal)| {across:.3f}, '
-                f'outward {outward:.3f}, {len(result.contours)} points, {len(result.edges)} edge lines'
+                f'outward {outward:.3f}, {len(result.contours)} points, {len(result.edges)} edge '
+                'lines'
             )
             assert distance <= 1.5 and across < 0.2 and outward > 0.9
             np.testing.assert_allclose(

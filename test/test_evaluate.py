@@ -1,4 +1,7 @@
-"""`memo-ros evaluate` end to end on simulated bags: known errors in, the same numbers out (no DDS)."""
+"""`memo-ros evaluate` end to end on simulated bags.
+
+Known errors in, the same numbers out (no DDS).
+"""
 
 import json
 import os
@@ -60,7 +63,10 @@ def evaluate_json(truth: Path, estimate: Path, *extra: str) -> dict:
 def write_estimate(
     path: Path, track, origin_offset=np.zeros(3), local_rotation=np.eye(3), phase=None
 ) -> Path:
-    """Return an estimate bag (/memo/body_poses, /memo/joint_states) from a truth track, every part moved alike."""
+    """Return an estimate bag (/memo/body_poses, /memo/joint_states) from a truth track.
+
+    Every part moved alike.
+    """
     with BagWriter(path) as writer:
         for stamp in sorted(track.origins):
             rotations = track.rotations[stamp] @ local_rotation

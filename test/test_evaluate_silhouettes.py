@@ -1,4 +1,7 @@
-"""`memo-ros evaluate --images` without ground truth: silhouette IoU per camera, frames lost, overlays."""
+"""`memo-ros evaluate --images` without ground truth.
+
+Silhouette IoU per camera, frames lost, overlays.
+"""
 
 import json
 import os
@@ -36,14 +39,20 @@ def memo_ros_cli(*args) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope='module')
 def arm(tmp_path_factory):
-    """Return a studio-arm bag (10 empty frames, then 8 with the subject) at 320x240, and its truth track."""
+    """Return a studio-arm bag (10 empty frames, then 8 with the subject) at 320x240.
+
+    And its truth track.
+    """
     out = tmp_path_factory.mktemp('arm') / 'rec'
     result = simulate('studio-arm', out, frames=8, width=320, height=240)
     return result, load_track(result.bag, TRUTH_TOPICS)
 
 
 def write_estimate(path: Path, track, offset=np.zeros(3), outcomes=None) -> Path:
-    """Return an estimate bag: the truth's poses moved by ``offset`` and each frame's /memo/processed outcome."""
+    """Return an estimate bag.
+
+    The truth's poses moved by ``offset`` and each frame's /memo/processed outcome.
+    """
     stamps = sorted(track.origins)
     outcomes = outcomes or ['tracking'] * len(stamps)
     with BagWriter(path) as writer:

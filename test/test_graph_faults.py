@@ -1,8 +1,10 @@
-"""Faults in the live graph (issue 7): nodes killed and restarted mid-run, a corrupt bag, an unknown encoding.
+"""Faults in the live graph (issue 7).
 
-Every node runs as its own process over real DDS; the bag is replayed into them with back-pressure and the
-test acts when the frame it waits for goes by (it watches cam_front's camera_info), so the faults hit the
-same frames on a loaded machine too.
+Nodes killed and restarted mid-run, a corrupt bag, an unknown encoding.
+
+Every node runs as its own process over real DDS; the bag is replayed into them with back-pressure
+and the test acts when the frame it waits for goes by (it watches cam_front's camera_info), so the
+faults hit the same frames on a loaded machine too.
 """
 
 from __future__ import annotations
@@ -54,7 +56,10 @@ def arm(tmp_path_factory):
 
 
 class Graph:
-    """The nodes of the graph started one by one, so that the test can kill and restart any of them."""
+    """The nodes of the graph started one by one.
+
+    So that the test can kill and restart any of them.
+    """
 
     def __init__(self, ros_env, studio: Path, cameras: list[str], state: Path) -> None:
         self.env, self.studio, self.cameras, self.state = ros_env, studio, cameras, state
@@ -129,8 +134,11 @@ def _wait_until_up(ros_env, cameras: list[str], timeout: float = 60.0) -> None:
 
 
 def _play_with_faults(ros_env, arm, tmp_path: Path, faults: dict[int, list]) -> Path:
-    """Start the graph, replay the bag into it with back-pressure (``memo-ros replay --no-launch``), call each
-    ``faults[k]`` action with the graph when frame k goes by; the recorded outputs and the graph (stopped).
+    """Start the graph.
+
+    Replay the bag into it with back-pressure (``memo-ros replay --no-launch``), call each
+    ``faults[k]`` action with the graph when frame k goes by; the recorded outputs and the graph
+    (stopped).
     """
     cameras = arm.cameras
     graph = Graph(ros_env, arm.studio, cameras, tmp_path)
@@ -162,7 +170,10 @@ def _play_with_faults(ros_env, arm, tmp_path: Path, faults: dict[int, list]) -> 
 
 
 def _frame_stamps(bag: Path) -> list[int]:
-    """Return the bag's frame stamps (cam_front's camera_info): frame k of the faults and of the figures."""
+    """Return the bag's frame stamps (cam_front's camera_info).
+
+    Frame k of the faults and of the figures.
+    """
     return sorted(
         stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_front/camera_info'])
     )
@@ -178,7 +189,10 @@ def _errors(arm, out: Path):
 
 
 def _alive(out: Path, camera: str) -> tuple[dict[int, bool], dict[int, int]]:
-    """Per assignment stamp: whether the selector counted ``camera`` alive, and when it was recorded (wall ns)."""
+    """Per assignment stamp.
+
+    Whether the selector counted ``camera`` alive, and when it was recorded (wall ns).
+    """
     alive, recorded = {}, {}
     for m in read_messages(out, ['/memo/camera_assignment']):
         a = assignment_from_message(m.message)
@@ -189,8 +203,9 @@ def _alive(out: Path, camera: str) -> tuple[dict[int, bool], dict[int, int]]:
 
 
 def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_path):
-    """cam_top's contour_node dies at frame 60 and is started again at 180; the tracker dies at 320 and is
-    started again at once.
+    """cam_top's contour_node dies at frame 60 and is started again at 180.
+
+    The tracker dies at 320 and is started again at once.
     """
     kill_at, restart_at, tracker_at = 60, 180, 320
     out, graph = _play_with_faults(
@@ -208,7 +223,8 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
     alive, recorded = _alive(out, 'cam_top')
     flags = [alive.get(s) for s in stamps]
     print(
-        f'{len(frames)}/{len(stamps)} frames tracked, MPJPE mean {mpjpe.mean():.1f} mm; cam_top alive '
+        f'{len(frames)}/{len(stamps)} frames tracked, MPJPE mean {mpjpe.mean():.1f} mm; cam_top '
+        'alive '
         f'{"".join("-" if f is None else "1" if f else "0" for f in flags)}'
     )
     print('per frame MPJPE:', ' '.join(f'{k}:{e:.0f}' for k, e in zip(frames, mpjpe)))
@@ -220,13 +236,15 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
     assert back, 'cam_top must come back after its contour_node restarts'
     back_s = (recorded[stamps[back[0]]] - graph.started_ns['cam_top']) * 1e-9
     print(
-        f'cam_top back in the assignment at frame {back[0]}, {back_s:.1f} s after its contour_node restarted'
+        f'cam_top back in the assignment at frame {back[0]}, {back_s:.1f} s after its '
+        'contour_node restarted'
     )
     assert back_s <= RESTART_S, f'cam_top must be back within {RESTART_S:g} s of its restart'
     assert all(flags[k] for k in range(back[0], len(stamps)) if flags[k] is not None)
     during = (frames >= kill_at) & (frames < back[0])
     print(
-        f'before: MPJPE mean {mpjpe[frames < kill_at].mean():.1f} mm; outage: {during.sum()} of {back[0] - kill_at} '
+        f'before: MPJPE mean {mpjpe[frames < kill_at].mean():.1f} mm; outage: {during.sum()} of '
+        f'{back[0] - kill_at} '
         f'frames tracked, MPJPE mean {mpjpe[during].mean():.1f} mm'
     )
     assert during.sum() >= 0.5 * (back[0] - kill_at), (
@@ -249,8 +267,10 @@ def test_killed_and_restarted_nodes_contour_node_then_tracker(ros_env, arm, tmp_
     )
     settled = frames >= first + RECOVERY_FRAMES
     print(
-        f'tracker restart: first output of the new process at frame {first} ({first - tracker_at} frames after '
-        f'the kill, {up_s:.1f} s after its start), MPJPE mean {mpjpe[settled].mean():.1f} mm from {RECOVERY_FRAMES} frames later'
+        f'tracker restart: first output of the new process at frame {first} '
+        f'({first - tracker_at} frames after '
+        f'the kill, {up_s:.1f} s after its start), MPJPE mean {mpjpe[settled].mean():.1f} mm '
+        f'from {RECOVERY_FRAMES} frames later'
     )
     assert settled.sum() >= 0.8 * (len(stamps) - first - RECOVERY_FRAMES)
     assert mpjpe[settled].mean() <= 25.0
@@ -277,7 +297,10 @@ def _with_encoding(bag: Path, out: Path, encoding: str) -> Path:
 
 
 def _diagnostics(ros_env, names: list[str], timeout: float = 15.0) -> dict[str, dict[str, str]]:
-    """Node name -> its /diagnostics values, once each of ``names`` has reported (twice: counters settle)."""
+    """Node name -> its /diagnostics values, once each of ``names`` has reported.
+
+    Twice: counters settle.
+    """
     from diagnostic_msgs.msg import DiagnosticArray
 
     values: dict[str, dict[str, str]] = {}

@@ -1,4 +1,7 @@
-"""`memo-ros import videos` and `memo-ros export videos`: round trips through every calibration format, the demo."""
+"""`memo-ros import videos` and `memo-ros export videos`.
+
+Round trips through every calibration format, the demo.
+"""
 
 from pathlib import Path
 import shutil

@@ -1,4 +1,7 @@
-"""`memo-ros launch`: one contour_node per camera as processes; all stop together, a death is reported."""
+"""`memo-ros launch`.
+
+One contour_node per camera as processes; all stop together, a death is reported.
+"""
 
 from __future__ import annotations
 

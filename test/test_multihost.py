@@ -1,10 +1,11 @@
-"""The graph split over hosts (issue 7): network namespaces with their own addresses on a bridge, a camera
-host running the contour nodes and the player, a tracking host running the selector and the tracker, DDS
-discovery by static peers over UDP only (no shared memory between the hosts), the same end-to-end check as
-on one host.
+"""The graph split over hosts (issue 7).
 
-Needs root and network namespaces (`ip netns`); skipped, with the reason, where the machine does not allow
-them.
+Network namespaces with their own addresses on a bridge, a camera host running the contour nodes
+and the player, a tracking host running the selector and the tracker, DDS discovery by static peers
+over UDP only (no shared memory between the hosts), the same end-to-end check as on one host.
+
+Needs root and network namespaces (`ip netns`); skipped, with the reason, where the machine does
+not allow them.
 """
 
 from __future__ import annotations
@@ -37,7 +38,10 @@ def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
 
 @pytest.fixture
 def hosts():
-    """Two hosts, ``cams`` and ``track``, as network namespaces on a bridge; their names and addresses."""
+    """Two hosts, ``cams`` and ``track``, as network namespaces on a bridge.
+
+    Their names and addresses.
+    """
     if os.geteuid() != 0 or shutil.which('ip') is None:
         pytest.skip(
             'multi-host test skipped: needs root and iproute2 (`ip netns`) for network namespaces'
@@ -53,7 +57,8 @@ def hosts():
             _ip('link', 'add', bridge, 'type', 'bridge')
         except subprocess.CalledProcessError as exc:
             pytest.skip(
-                f'multi-host test skipped: this machine does not allow network devices: {exc.stderr.strip()}'
+                'multi-host test skipped: this machine does not allow network devices: '
+                f'{exc.stderr.strip()}'
             )
         made.append(bridge)
         _ip('link', 'set', bridge, 'up')
@@ -62,7 +67,8 @@ def hosts():
                 _ip('netns', 'add', ns)
             except subprocess.CalledProcessError as exc:
                 pytest.skip(
-                    f'multi-host test skipped: network namespaces not allowed: {exc.stderr.strip()}'
+                    'multi-host test skipped: network namespaces not allowed: '
+                    f'{exc.stderr.strip()}'
                 )
             made.append(ns)
             veth = f'v{tag}{role[0]}'
@@ -136,7 +142,8 @@ def test_the_graph_split_over_a_camera_host_and_a_tracking_host(hosts, ros_env, 
     truth = load_track(sim.bag, TRUTH_TOPICS)
     errors = match_and_measure(truth, load_track(out, ESTIMATE_TOPICS), 1_000_000)
     print(
-        f'two hosts: {len(errors.stamps_ns)}/{len(truth.origins)} frames, MPJPE mean {errors.mpjpe_mm.mean():.1f} mm, '
+        f'two hosts: {len(errors.stamps_ns)}/{len(truth.origins)} frames, MPJPE mean '
+        f'{errors.mpjpe_mm.mean():.1f} mm, '
         f'worst frame {errors.mpjpe_mm.max():.1f} mm'
     )
     assert len(errors.stamps_ns) == len(truth.origins)

@@ -1,5 +1,7 @@
-"""The real four-camera Pose2Sim demo, on a few frames: import, segment without a clean background, measure
-the body, track, and score by silhouette IoU (no DDS; the live graph runs it in scripts/demo_pose2sim.sh).
+"""The real four-camera Pose2Sim demo, on a few frames.
+
+Import, segment without a clean background, measure the body, track, and score by silhouette IoU
+(no DDS; the live graph runs it in scripts/demo_pose2sim.sh).
 """
 
 import os
@@ -85,7 +87,10 @@ def backgrounds(demo):
 
 
 def pipelines(backgrounds) -> dict[str, ContourPipeline]:
-    """Return the demo's contour pipelines (scripts/demo_pose2sim.sh's settings), starting from the backgrounds."""
+    """Return the demo's contour pipelines (scripts/demo_pose2sim.sh's settings).
+
+    Starting from the backgrounds.
+    """
     out = {}
     for name, model in backgrounds.items():
         pipeline = ContourPipeline(

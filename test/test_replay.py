@@ -1,4 +1,7 @@
-"""`memo-ros replay`: the live graph paced by back-pressure, every frame processed and its outputs recorded."""
+"""`memo-ros replay`.
+
+The live graph paced by back-pressure, every frame processed and its outputs recorded.
+"""
 
 from __future__ import annotations
 

@@ -247,7 +247,10 @@ def test_change_segmenter_on_the_studio_arm_sees_only_the_arm(studio_arm):
 def _arm_beside_trunk(
     noise: float, slit: int, seed: int = 4
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Background, a frame with a trunk and an arm ``slit`` px apart (open at the bottom), the true mask."""
+    """Background, a frame with a trunk and an arm ``slit`` px apart (open at the bottom).
+
+    The true mask.
+    """
     rng = np.random.default_rng(seed)
     background = cv2.GaussianBlur(rng.normal(120, 25, (120, 160)), (0, 0), 3).clip(0, 255)
     truth = np.zeros((120, 160), bool)

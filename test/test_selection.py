@@ -1,4 +1,7 @@
-"""Active viewpoint selection (Kakadiaris & Metaxas §4) in the ROS-free core: VI, observability, assignment."""
+"""Active viewpoint selection (Kakadiaris & Metaxas §4) in the ROS-free core.
+
+VI, observability, assignment.
+"""
 
 from __future__ import annotations
 
@@ -56,7 +59,10 @@ def _vertical_cylinder_pose(y: float, x: float) -> tuple[np.ndarray, np.ndarray]
 
 
 def _image_interval(f: float, y: float, depth: float, r: float) -> tuple[float, float]:
-    """Exact image-x interval of a vertical circular cylinder's silhouette (tangent lines from the centre)."""
+    """Exact image-x interval of a vertical circular cylinder's silhouette.
+
+    Tangent lines from the centre.
+    """
     centre = np.arctan2(y, depth)
     half = np.arcsin(r / np.hypot(y, depth))
     return f * np.tan(centre - half), f * np.tan(centre + half)

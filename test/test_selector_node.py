@@ -1,4 +1,7 @@
-"""selector_node over real DDS: a studio-arm bag in, assignments out; camera timeout; bad parameters and input."""
+"""selector_node over real DDS.
+
+a studio-arm bag in, assignments out; camera timeout; bad parameters and input.
+"""
 
 from __future__ import annotations
 
@@ -120,7 +123,10 @@ def test_bad_parameters_are_refused_at_start_with_one_line(ros_env, tmp_path):
 
 
 class Feeder:
-    """A test participant: camera_info and contours publishers, a joint_states publisher, assignment collector."""
+    """A test participant.
+
+    camera_info and contours publishers, a joint_states publisher, assignment collector.
+    """
 
     def __init__(self, node, executor, cameras) -> None:
         self.node, self.executor, self.cameras = node, executor, cameras

@@ -1,4 +1,7 @@
-"""The simulator's bags: topics, counts, stamps, calibration, truth kinematics, encodings, seeds, the person."""
+"""The simulator's bags.
+
+Topics, counts, stamps, calibration, truth kinematics, encodings, seeds, the person.
+"""
 
 from collections import defaultdict
 import os

@@ -1,8 +1,10 @@
-"""A two-minute soak of the live graph at 30 Hz with three 640x480 cameras (issue 7): memory stays bounded
-and every frame is either tracked or counted with its reason.
+"""A two-minute soak of the live graph at 30 Hz with three 640x480 cameras (issue 7).
 
-Runs `memo-ros benchmark graph` (launched graph, best-effort images restamped to the wall clock, a studio-arm
-bag played 15 times in a row) and checks its report; the figures are printed with ``pytest -s``.
+Memory stays bounded and every frame is either tracked or counted with its reason.
+
+Runs `memo-ros benchmark graph` (launched graph, best-effort images restamped to the wall clock, a
+studio-arm bag played 15 times in a row) and checks its report; the figures are printed with
+``pytest -s``.
 """
 
 from __future__ import annotations

@@ -1,4 +1,7 @@
-"""tracker_node as its own process over real DDS: frames in, joint states out, bad input counted, resets."""
+"""tracker_node as its own process over real DDS.
+
+Frames in, joint states out, bad input counted, resets.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
-"""The whole graph over real DDS on simulated bags: contour nodes, selector and tracker as processes, scored
-against the simulator's truth (issue 5's "Done when").
+"""The whole graph over real DDS on simulated bags.
+
+Contour nodes, selector and tracker as processes, scored against the simulator's truth (issue 5's
+"Done when").
 """
 
 from __future__ import annotations
@@ -35,8 +37,10 @@ class Replay:
 def _replay(
     ros_env, tmp_path: Path, scenario: str, noise: float = 3.0, drop: dict | None = None
 ) -> Replay:
-    """Simulate ``scenario``, replay it through the live graph with back-pressure (``memo-ros replay``: the
-    launched nodes over DDS, each frame played once the tracker finished the one before), score the outputs.
+    """Simulate ``scenario``.
+
+    Replay it through the live graph with back-pressure (``memo-ros replay``: the launched nodes
+    over DDS, each frame played once the tracker finished the one before), score the outputs.
     """
     sim = simulate(scenario, tmp_path / 'bag', options=ImagingOptions(noise=noise), drop=drop)
     out = tmp_path / 'out'
@@ -54,8 +58,10 @@ def _replay(
 def _summary(r: Replay) -> str:
     e = r.errors
     return (
-        f'{len(e.stamps_ns)}/{r.truth_frames} frames (missing {r.missing}), MPJPE mean {e.mpjpe_mm.mean():.1f} mm, worst frame '
-        f'{e.mpjpe_mm.max():.1f} mm, worst joint {e.joint_mm.max():.1f} mm, worst axis {e.axis_deg.max():.2f} deg'
+        f'{len(e.stamps_ns)}/{r.truth_frames} frames (missing {r.missing}), MPJPE mean '
+        f'{e.mpjpe_mm.mean():.1f} mm, worst frame '
+        f'{e.mpjpe_mm.max():.1f} mm, worst joint {e.joint_mm.max():.1f} mm, worst axis '
+        f'{e.axis_deg.max():.2f} deg'
     )
 
 

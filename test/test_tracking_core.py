@@ -1,4 +1,7 @@
-"""The tracker's science without DDS: motion model, Jacobian L, force assignment, information-form EKF, track states."""
+"""The tracker's science without DDS.
+
+Motion model, Jacobian L, force assignment, information-form EKF, track states.
+"""
 
 from __future__ import annotations
 
@@ -50,7 +53,10 @@ BODY = load_default_body()
 
 
 def _silhouette_contours(cameras, q):
-    """Return what a perfect contour_node sees: the outer outline of the rendered body, smoothed and sampled."""
+    """Return what a perfect contour_node sees.
+
+    The outer outline of the rendered body, smoothed and sampled.
+    """
     rotations, origins = BODY.forward_kinematics(q)
     tables = {}
     for cam in cameras:
@@ -184,7 +190,10 @@ def test_rig_batches_equal_the_per_camera_candidates_and_outline_tests():
 
 
 def _reference_assignment(rays, cand, epsilon, gate):
-    """Brute force Steps 2-3: per sample, the first of its 8 nearest candidates within the gate passing eq. 13."""
+    """Brute force Steps 2-3.
+
+    Per sample, the first of its 8 nearest candidates within the gate passing eq. 13.
+    """
     out = []
     for s, uv in enumerate(rays.uv):
         d = np.hypot(*(cand.uv - uv).T)

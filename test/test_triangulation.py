@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from memo_ros.core.evaluation.keypoints import JOINTS, SWAP, compare, heading, procrustes
+from memo_ros.core.evaluation.keypoints import JOINTS, compare, heading, procrustes
 from memo_ros.core.evaluation.triangulation import triangulate
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import rot_z

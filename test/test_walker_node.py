@@ -1,4 +1,7 @@
-"""Rohr's walker through the real graph: a street-walk bag played into contour_node + walker_node over DDS."""
+"""Rohr's walker through the real graph.
+
+a street-walk bag played into contour_node + walker_node over DDS.
+"""
 
 from __future__ import annotations
 
@@ -30,7 +33,10 @@ INIT_LAST = 14  # Rohr's initialization images 2-14, counted from the first rect
 
 
 def _wait_for_graph(ros_env, published, subscribed, timeout=40.0):
-    """Until the walker publishes its outputs, the recorder subscribes them and the graph takes the images."""
+    """Until the walker publishes its outputs.
+
+    The recorder subscribes them and the graph takes the images.
+    """
     with ros_session('graph_probe', ros_env.domain_id) as (node, _):
         deadline = time.monotonic() + timeout
         while not (
@@ -159,7 +165,8 @@ def test_walker_tracks_the_whole_street_walk(street_run):
     )
     figures = (
         f'{after.sum()} frames: phase median {np.median(phase):.4f} max {phase.max():.4f}, '
-        f'X RMSE {100 * np.sqrt(np.mean(x_err**2)):.2f} cm, Y RMSE {100 * np.sqrt(np.mean(y_err**2)):.2f} cm'
+        f'X RMSE {100 * np.sqrt(np.mean(x_err**2)):.2f} cm, Y RMSE '
+        f'{100 * np.sqrt(np.mean(y_err**2)):.2f} cm'
     )
     print(figures)
     assert np.median(phase) <= 0.02 and phase.max() <= 0.1, figures
@@ -218,7 +225,8 @@ def test_kalman_estimates_are_smoother_than_the_measurements(street_run):
     step = lambda v: np.stack([np.diff(v[:, 0]), np.mod(np.diff(v[:, 1]) + 0.5, 1.0) - 0.5], 1)
     var_raw, var_kalman = step(raw).var(axis=0), step(kalman).var(axis=0)
     print(
-        f'frame-to-frame variance X: measurements {var_raw[0]:.3g} m^2, Kalman {var_kalman[0]:.3g} m^2; '
+        f'frame-to-frame variance X: measurements {var_raw[0]:.3g} m^2, Kalman '
+        f'{var_kalman[0]:.3g} m^2; '
         f'pose: measurements {var_raw[1]:.3g}, Kalman {var_kalman[1]:.3g}'
     )
     assert np.all(var_kalman < var_raw), (var_raw, var_kalman)

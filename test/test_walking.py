@@ -1,5 +1,7 @@
-"""Rohr's walker in the ROS-free core: eq. 2-6, visible model contours, eq. 7-11, the two-lines rule, the
-Kalman filter (eq. 12-22) and the initialization on simulated street frames.
+"""Rohr's walker in the ROS-free core.
+
+Eq. 2-6, visible model contours, eq. 7-11, the two-lines rule, the Kalman filter (eq. 12-22) and
+the initialization on simulated street frames.
 """
 
 from __future__ import annotations

@@ -49,7 +49,8 @@ PARAMS = (
         'segmenter',
         'background',
         'person segmentation: a static background learnt over the first frames, '
-        "Rohr's change detection against the previous frame, or a background learnt from a sequence that "
+        "Rohr's change detection against the previous frame, or a background learnt from a "
+        'sequence that '
         'never shows the scene empty (colour, person masked out, kept learning)',
         choices=('background', 'change', 'sequence'),
     ),
@@ -73,7 +74,8 @@ PARAMS = (
         'background_bag',
         '',
         "sequence segmenter: a rosbag2 with this camera's image_raw of the same scene "
-        '(the recording being replayed, or a clip taken before); the background is learnt from it at start-up '
+        '(the recording being replayed, or a clip taken before); the background is learnt from '
+        'it at start-up '
         'instead of from the first live frames',
         read_only=True,
     ),
@@ -81,7 +83,8 @@ PARAMS = (
         'background_track',
         '',
         "sequence segmenter with background_bag: the tracker's output bag of a first "
-        'pass over that recording; its /memo/markers body, grown by background_track_margin, is never learnt '
+        'pass over that recording; its /memo/markers body, grown by background_track_margin, is '
+        'never learnt '
         'from (where the person stands still in most frames the background would show him)',
         read_only=True,
     ),
@@ -119,7 +122,8 @@ PARAMS = (
         'roi_wait',
         0.0,
         "tracked region: longest wait for the tracker's body of the previous image before an "
-        'image is segmented, s (0: segment at once with the newest body; bag replay waits so that the result '
+        'image is segmented, s (0: segment at once with the newest body; bag replay waits so '
+        'that the result '
         'does not depend on which message DDS delivers first)',
         0.0,
         10.0,
@@ -128,7 +132,8 @@ PARAMS = (
         'background_file',
         '',
         'PNG where the learnt background is saved and, when it exists at start, loaded '
-        'from instead of learning (a restarted node must not learn the person into it); empty: off',
+        'from instead of learning (a restarted node must not learn the person into it); empty: '
+        'off',
         read_only=True,
     ),
     Param(
@@ -210,7 +215,10 @@ class PendingImage:
 
 
 def pipeline_settings(params: dict) -> PipelineSettings:
-    """Return the core pipeline's settings from this node's parameters (defaults for any not given)."""
+    """Return the core pipeline's settings from this node's parameters.
+
+    Defaults for any not given.
+    """
     p = {q.name: q.default for q in PARAMS} | dict(params)
     return PipelineSettings(
         segmenter=p['segmenter'],
@@ -237,8 +245,10 @@ def recording_background(
     params: dict,
     bodies: dict[int, tuple] | None = None,
 ) -> BackgroundModel:
-    """Return the sequence segmenter's background of a recording (background_bag): at most background_frames of
-    ``frames``, without the ``bodies`` a first pass tracked at ``stamps`` (background_track) when given.
+    """Return the sequence segmenter's background of a recording (background_bag).
+
+    At most background_frames of ``frames``, without the ``bodies`` a first pass tracked at
+    ``stamps`` (background_track) when given.
     """
     person_at = (
         None
@@ -327,7 +337,10 @@ class ContourNode(Node):
     # ------------------------------------------------------------ sequence background and tracked
     # region
     def _studio_camera(self):
-        """Return this camera's calibration from the studio parameters, when the tracked region is wanted."""
+        """Return this camera's calibration from the studio parameters.
+
+        When the tracked region is wanted.
+        """
         if self.params['keep_regions'] != 'tracked' and self.params['segmenter'] != 'sequence':
             return None
         try:
@@ -342,7 +355,10 @@ class ContourNode(Node):
             return None
 
     def _learn_background_from_bag(self):
-        """Return the sequence segmenter's background learnt from background_bag (None without one)."""
+        """Return the sequence segmenter's background learnt from background_bag.
+
+        None without one.
+        """
         path = self.params['background_bag']
         if not path or self.params['segmenter'] != 'sequence':
             return None
@@ -374,7 +390,10 @@ class ContourNode(Node):
         return model
 
     def _new_pipeline(self) -> ContourPipeline:
-        """Return the pipeline for the current parameters, starting from the bag-learnt background if any."""
+        """Return the pipeline for the current parameters.
+
+        Starting from the bag-learnt background if any.
+        """
         pipeline = ContourPipeline(pipeline_settings(self.params))
         if self.background is not None:
             pipeline.segmenter.method.set_model(self.background.copy())
@@ -389,7 +408,9 @@ class ContourNode(Node):
                 self._segment_pending()
 
     def _waits_for_markers(self, previous_ns: int | None) -> bool:
-        """roi_wait: whether an image must wait for the tracked body of the image before it (only once the
+        """roi_wait.
+
+        Whether an image must wait for the tracked body of the image before it (only once the
         tracker has sent a body: without a tracker running, images never wait).
         """
         return (
@@ -401,8 +422,9 @@ class ContourNode(Node):
         )
 
     def _segment_pending(self, reason: str | None = None, message: str = '') -> None:
-        """Segment the image that waited for the tracked body: it came, or (``reason`` noted) the wait ran out
-        or another image came first.
+        """Segment the image that waited for the tracked body.
+
+        It came, or (``reason`` noted) the wait ran out or another image came first.
         """
         pending, self.pending = self.pending, None
         pending.timer.cancel()
@@ -412,7 +434,10 @@ class ContourNode(Node):
         self._segment(pending.msg, pending.image, pending.stamp)
 
     def _tracked_region(self, stamp: int, shape: tuple[int, int]) -> np.ndarray | None:
-        """Return the tracked body's projection grown by roi_margin, from markers at most roi_max_age older."""
+        """Return the tracked body's projection grown by roi_margin.
+
+        From markers at most roi_max_age older.
+        """
         if self.camera is None or self.markers is None:
             return None
         marker_stamp, body = self.markers

@@ -59,7 +59,8 @@ PARAMS = (
         'vi_threshold',
         0.0,
         'a part is visible from a camera when its visibility index (visible / unoccluded '
-        'projected area) is at least this; 0: every camera it projects into (Kakadiaris §4 uses 0.2, which '
+        'projected area) is at least this; 0: every camera it projects into (Kakadiaris §4 uses '
+        '0.2, which '
         'drops partial views the tracker needs)',
         0.0,
         1.0,
@@ -82,7 +83,8 @@ PARAMS = (
         'observability_norm',
         'norm_of_sum',
         "how a part's predicted contour-node image motion is combined: "
-        "the paper's norm of the sum, or the sum of the norms (does not cancel for a part spinning about its "
+        "the paper's norm of the sum, or the sum of the norms (does not cancel for a part "
+        'spinning about its '
         'own axis)',
         choices=NORMS,
     ),
@@ -128,7 +130,10 @@ PARAMS = (
 
 
 def selection_settings(params: dict) -> SelectionSettings:
-    """Return the core selector's settings from this node's parameters (defaults for any not given)."""
+    """Return the core selector's settings from this node's parameters.
+
+    Defaults for any not given.
+    """
     p = {q.name: q.default for q in PARAMS} | dict(params)
     return SelectionSettings(
         vi_threshold=p['vi_threshold'],
@@ -140,7 +145,10 @@ def selection_settings(params: dict) -> SelectionSettings:
 
 
 def header_stamp_ns(cdr: bytes) -> int | None:
-    """Return the header stamp of a serialized message that starts with std_msgs/Header (None if too short)."""
+    """Return the header stamp of a serialized message that starts with std_msgs/Header.
+
+    None if too short.
+    """
     if len(cdr) < 12:
         return None
     endian = '<' if cdr[1] & 1 else '>'  # CDR encapsulation: 0x0001 little, 0x0000 big endian
@@ -341,7 +349,8 @@ class SelectorNode(Node):
             return
         if previous is not None and stamp < previous:
             self._reset(
-                f'{cam}/camera_info stamps went backwards (bag loop?): liveness and posteriors reset'
+                f'{cam}/camera_info stamps went backwards (bag loop?): liveness and posteriors '
+                'reset'
             )
         self.info_stamp[cam] = stamp
         self.liveness.seen(cam, stamp, 'camera_info')
@@ -418,9 +427,11 @@ class SelectorNode(Node):
         if published % self.params['summary_every'] == 0:
             unobserved = [p for p, o in zip(PART_NAMES, assignment.observed) if not o]
             self.get_logger().info(
-                f'{published} assignments; frame {stamp * 1e-9:.3f} {assignment.mode}, cameras alive '
+                f'{published} assignments; frame {stamp * 1e-9:.3f} {assignment.mode}, cameras '
+                'alive '
                 f'{",".join(c for c in self.names if alive[c]) or "none"}, unobserved '
-                f'{",".join(unobserved) or "none"}; median {np.median(self.frame_ms):.2f} ms per frame'
+                f'{",".join(unobserved) or "none"}; median {np.median(self.frame_ms):.2f} ms per '
+                'frame'
             )
 
     def _log_liveness(self, alive: dict[str, bool], stamp: int) -> None:

@@ -190,7 +190,8 @@ PARAMS: tuple[Param, ...] = (
         'body_source',
         'studio',
         "the body's dimensions: the studio file's, or the studio body's proportions "
-        "scaled to the subject's height measured from the visual hull of the first frames' silhouettes (real "
+        "scaled to the subject's height measured from the visual hull of the first frames' "
+        'silhouettes (real '
         'recordings)',
         choices=('studio', 'silhouettes'),
         read_only=True,
@@ -230,7 +231,8 @@ PARAMS: tuple[Param, ...] = (
         'max_lag',
         1.0,
         'frames are tracked in order, but one older than the newest complete frame by more than '
-        'this (stamp time) is skipped (counted skipped_behind): the latency bound when the update is slower than '
+        'this (stamp time) is skipped (counted skipped_behind): the latency bound when the '
+        'update is slower than '
         'the cameras; 0 tracks only the newest, a large value every frame',
         0.0,
         3600.0,
@@ -282,10 +284,10 @@ class TrackerNode(Node):
     """Joins contours and assignments per frame and runs the articulated EKF.
 
     The executor (one thread) only takes messages, services and parameters; frames are tracked on a
-    thread of their own, so the join always sees what has arrived and, when the update falls behind the
-    cameras by more than max_lag, skips ahead instead of letting the DDS queues overflow.  (rclpy's
-    multi-threaded executor with a tracking callback group did the same, but left complete frames waiting
-    0.3 - 2 s for their turn: a paced replay ran at a fifth of its speed.)
+    thread of their own, so the join always sees what has arrived and, when the update falls behind
+    the cameras by more than max_lag, skips ahead instead of letting the DDS queues overflow.
+    (rclpy's multi-threaded executor with a tracking callback group did the same, but left complete
+    frames waiting 0.3 - 2 s for their turn: a paced replay ran at a fifth of its speed.)
     """
 
     def __init__(self, **kwargs) -> None:
@@ -449,8 +451,9 @@ class TrackerNode(Node):
         return on_contours
 
     def _frame_for(self, stamp: int, what: str) -> PendingFrame | None:
-        """Return the pending frame of ``stamp`` (call under the lock); None (counted) when it is late; a jump back
-        in time resets the filter.
+        """Return the pending frame of ``stamp`` (call under the lock).
+
+        None (counted) when it is late; a jump back in time resets the filter.
         """
         last = self.last_processed_ns
         if last is not None and stamp <= last:
@@ -476,8 +479,9 @@ class TrackerNode(Node):
         return frame
 
     def _late(self, stamp: int, what: str) -> None:
-        """Return a message of a frame already processed or passed over: counted; a frame first heard of now is
-        accounted for once, on /memo/processed as 'late'.
+        """Return a message of a frame already processed or passed over.
+
+        Counted; a frame first heard of now is accounted for once, on /memo/processed as 'late'.
         """
         if stamp in self.late_stamps or stamp in self.done_stamps:
             self.health.count('late_messages')
@@ -545,8 +549,10 @@ class TrackerNode(Node):
 
     # ------------------------------------------------------------ joining (under the lock)
     def _expected_cameras(self, stamp: int, frame: PendingFrame) -> list[str]:
-        """Cameras worth waiting for: alive in the assignment, or with recent contours; not one that was
-        missing from the last few joined frames (its contour_node died, before the selector says so).
+        """Cameras worth waiting for.
+
+        Alive in the assignment, or with recent contours; not one that was missing from the last
+        few joined frames (its contour_node died, before the selector says so).
         """
         if frame.assignment is not None:
             a = frame.assignment
@@ -571,10 +577,12 @@ class TrackerNode(Node):
         return all(c in frame.contours for c in self._expected_cameras(stamp, frame))
 
     def _next_frame(self) -> tuple[int, PendingFrame, list[str]] | None:
-        """Return the frame to track now, with the expected cameras it lacks: the oldest complete one (older
-        incomplete ones first, as they are), else the oldest whose wait exceeded join_timeout, going through
-        with what arrived.  Only time spent idle counts for the timeout: after a long update the queued
-        messages get their turn.  Frames more than max_lag older than the newest ready one are skipped.
+        """Return the frame to track now, with the expected cameras it lacks.
+
+        The oldest complete one (older incomplete ones first, as they are), else the oldest whose
+        wait exceeded join_timeout, going through with what arrived. Only time spent idle counts
+        for the timeout: after a long update the queued messages get their turn. Frames more than
+        max_lag older than the newest ready one are skipped.
         """
         ready = [s for s in sorted(self.pending) if self._complete(s, self.pending[s])]
         if not ready:
@@ -607,7 +615,10 @@ class TrackerNode(Node):
         return stamp, frame, missing
 
     def _skip(self, stamp: int) -> None:
-        """Return a frame passed over because a newer one is ready: counted, and reported done on /memo/processed."""
+        """Return a frame passed over because a newer one is ready.
+
+        Counted, and reported done on /memo/processed.
+        """
         self.health.drop(
             'skipped_behind',
             f'the tracker is more than max_lag = {self.params["max_lag"]:g} s '
@@ -732,8 +743,10 @@ class TrackerNode(Node):
         return TRACKING
 
     def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:
-        """body_source silhouettes: gather the frame's silhouettes; once body_frames are in, scale the body to
-        the measured height and start a tracker for it.  True when the body is measured (track this frame).
+        """body_source silhouettes.
+
+        Gather the frame's silhouettes; once body_frames are in, scale the body to the measured
+        height and start a tracker for it. True when the body is measured (track this frame).
         """
         cameras = [c for c in self.studio.cameras if len(contours.get(c.name, ()))]
         self.body_silhouettes.append(

@@ -204,7 +204,10 @@ def walker_settings(params: dict, frame_rate: float) -> WalkerSettings:
 
 
 def box_corners(msg: PolygonStamped) -> np.ndarray | None:
-    """Return the rectangle's corners (4, 2) or None when nobody is seen; ValueError for a malformed polygon."""
+    """Return the rectangle's corners (4, 2) or None when nobody is seen.
+
+    ValueError for a malformed polygon.
+    """
     points = msg.polygon.points
     if len(points) == 0:
         return None
@@ -423,7 +426,8 @@ class WalkerNode(Node):
         reasons = {
             'no_person': 'no person in the frame',
             'stale_stamp': 'frame not newer than the last tracked one',
-            'bad_box': 'the rectangle gives no 3D position (eq. 2-6): no height, or behind the camera',
+            'bad_box': 'the rectangle gives no 3D position (eq. 2-6): no height, or behind the '
+            'camera',
         }
         if event in reasons:
             self.health.drop(event, reasons[event])

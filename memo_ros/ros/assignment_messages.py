@@ -59,7 +59,10 @@ def assignment_to_message(assignment: Assignment, stamp: Time | int) -> Diagnost
 
 
 def is_assignment_message(msg) -> bool:
-    """Return True for a DiagnosticArray in this module's layout (one status per part, with a ``mode`` value)."""
+    """Return True for a DiagnosticArray in this module's layout.
+
+    One status per part, with a ``mode`` value.
+    """
     if not isinstance(msg, DiagnosticArray) or len(msg.status) != len(PART_NAMES):
         return False
     return all(s.name == p for s, p in zip(msg.status, PART_NAMES)) and any(
@@ -95,7 +98,8 @@ def assignment_from_message(msg: DiagnosticArray) -> Assignment:
             cam, _, key = kv.key.rpartition('.')
             if cam not in index:
                 raise ValueError(
-                    f'part {status.name}: value {kv.key!r} names a camera missing from the first part'
+                    f'part {status.name}: value {kv.key!r} names a camera missing from the first '
+                    'part'
                 )
             k = index[cam]
             if key == 'vi':
@@ -115,7 +119,10 @@ def assignment_from_message(msg: DiagnosticArray) -> Assignment:
 
 
 def assignment_rows(msg: DiagnosticArray) -> list[dict]:
-    """One row per (part, camera): part, observed, camera, alive, vi, observability, selected, rank (1 = best)."""
+    """One row per (part, camera).
+
+    Part, observed, camera, alive, vi, observability, selected, rank (1 = best).
+    """
     a = assignment_from_message(msg)
     rows = []
     for i, part in enumerate(PART_NAMES):
@@ -136,13 +143,18 @@ def assignment_rows(msg: DiagnosticArray) -> list[dict]:
 
 
 def assignment_table(msg: DiagnosticArray) -> list[str]:
-    """Return the message as text lines: a header, then a part x camera table (rank 1 = the best selected camera)."""
+    """Return the message as text lines.
+
+    a header, then a part x camera table (rank 1 = the best selected camera).
+    """
     a = assignment_from_message(msg)
     stamp = msg.header.stamp
     lines = [
-        f'camera assignment  stamp {stamp.sec}.{stamp.nanosec:09d}  frame_id {msg.header.frame_id}  '
+        f'camera assignment  stamp {stamp.sec}.{stamp.nanosec:09d}  frame_id '
+        f'{msg.header.frame_id}  '
         f'mode {a.mode}',
-        f'{"part":<12} {"camera":<12} {"alive":<5} {"vi":>6} {"observability":>13} {"selected":>8}',
+        f'{"part":<12} {"camera":<12} {"alive":<5} {"vi":>6} {"observability":>13} '
+        f'{"selected":>8}',
     ]
     for i, part in enumerate(PART_NAMES):
         label = part if a.observed[i] else f'{part} !'

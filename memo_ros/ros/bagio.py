@@ -129,7 +129,10 @@ class BagWriter:
     def add_connection(
         self, topic: str, msgtype: str, offered_qos: list[Qos] | None = None
     ) -> Connection:
-        """Register ``topic`` with its Jazzy message definition (and the QoS its publishers offered)."""
+        """Register ``topic`` with its Jazzy message definition.
+
+        And the QoS its publishers offered.
+        """
         conn = self._writer.add_connection(
             topic, msgtype, typestore=TYPESTORE, offered_qos_profiles=offered_qos or []
         )
@@ -166,7 +169,10 @@ class BagError(ValueError):
 
 
 def open_bag(path: str | Path) -> Reader:
-    """Return an open rosbags Reader for a bag directory or a single .mcap/.db3 file, or a BagError saying why not."""
+    """Return an open rosbags Reader for a bag directory or a single .mcap/.db3 file.
+
+    Or a BagError saying why not.
+    """
     path = Path(path)
     if not path.exists():
         raise BagError(f'no bag at {path}')

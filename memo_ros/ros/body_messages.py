@@ -1,7 +1,9 @@
-"""The tracker outputs as rclpy messages: joint states, part poses, RViz markers, root pose with covariance.
+"""The tracker outputs as rclpy messages.
 
-Shared by every node that publishes a body estimate (the articulated tracker and
-the walking tracker), so both speak exactly DESIGN.md's contract.
+Joint states, part poses, RViz markers, root pose with covariance.
+
+Shared by every node that publishes a body estimate (the articulated tracker and the walking
+tracker), so both speak exactly DESIGN.md's contract.
 """
 
 from __future__ import annotations
@@ -53,7 +55,10 @@ def processed_message(stamp_ns: int, outcome: str) -> Header:
 
 
 def joint_state_message(stamp_ns: int, names, positions, velocities=None) -> JointState:
-    """sensor_msgs/JointState in ``world`` with the generalized coordinates (and their time derivatives)."""
+    """sensor_msgs/JointState in ``world`` with the generalized coordinates.
+
+    And their time derivatives.
+    """
     msg = JointState(header=world_header(stamp_ns), name=list(names))
     msg.position = [float(v) for v in positions]
     if velocities is not None:
@@ -70,7 +75,10 @@ def _pose(rotation: np.ndarray, origin: np.ndarray) -> Pose:
 
 
 def pose_array_message(stamp_ns: int, rotations: np.ndarray, origins: np.ndarray) -> PoseArray:
-    """geometry_msgs/PoseArray: one pose per part in part order (origin = proximal joint, +z along the part)."""
+    """geometry_msgs/PoseArray.
+
+    One pose per part in part order (origin = proximal joint, +z along the part).
+    """
     return PoseArray(
         header=world_header(stamp_ns), poses=[_pose(r, o) for r, o in zip(rotations, origins)]
     )
@@ -84,7 +92,10 @@ def marker_array_message(
     colour: tuple[float, float, float, float] = (0.2, 0.6, 1.0, 0.8),
     lifetime_s: float = 0.5,
 ) -> MarkerArray:
-    """One CYLINDER per part, centred on the part's mid-point (RViz cylinders are centred, along z)."""
+    """One CYLINDER per part, centred on the part's mid-point.
+
+    RViz cylinders are centred, along z.
+    """
     markers = []
     r, g, b, a = colour
     for i, name in enumerate(PART_NAMES):
@@ -113,7 +124,10 @@ def marker_array_message(
 def root_pose_message(
     stamp_ns: int, rotation: np.ndarray, origin: np.ndarray, covariance: np.ndarray
 ) -> PoseWithCovarianceStamped:
-    """Return the pelvis pose with its 6x6 covariance (x, y, z, rotation about x, y, z), like robot_localization's output."""
+    """Return the pelvis pose with its 6x6 covariance (x, y, z, rotation about x, y, z).
+
+    Like robot_localization's output.
+    """
     msg = PoseWithCovarianceStamped(header=world_header(stamp_ns))
     msg.pose.pose = _pose(rotation, origin)
     msg.pose.covariance = [float(v) for v in np.asarray(covariance, float).reshape(36)]

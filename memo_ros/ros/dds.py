@@ -1,8 +1,10 @@
-"""DDS plumbing shared by the tools: a ROS session, QoS by name or adapted to publishers, topic discovery, stop signals.
+"""DDS plumbing shared by the tools.
 
-Tools own their ``rclpy.Context`` (never the global one) and install their own
-SIGINT/SIGTERM handlers, so a signal only asks the tool to stop and the tool
-can close bags and shut down executor, node and context in that order.
+a ROS session, QoS by name or adapted to publishers, topic discovery, stop signals.
+
+Tools own their ``rclpy.Context`` (never the global one) and install their own SIGINT/SIGTERM
+handlers, so a signal only asks the tool to stop and the tool can close bags and shut down
+executor, node and context in that order.
 """
 
 from __future__ import annotations
@@ -45,10 +47,12 @@ def qos_profile(
 def adapted_qos(
     node: Node, topic: str, depth: int, reliability: str = 'auto', durability: str = 'auto'
 ) -> QoSProfile:
-    """Return a subscription profile that matches every current publisher of ``topic`` ('auto' adapts like rosbag2).
+    """Return a subscription profile that matches every current publisher of ``topic``.
 
-    Reliable only when all publishers are reliable, transient-local only when all
-    are, so a subscriber neither misses best-effort publishers nor latched messages.
+    'auto' adapts like rosbag2.
+
+    Reliable only when all publishers are reliable, transient-local only when all are, so a
+    subscriber neither misses best-effort publishers nor latched messages.
     """
     offered = [info.qos_profile for info in node.get_publishers_info_by_topic(topic)]
     if reliability == 'auto':
@@ -65,7 +69,10 @@ def adapted_qos(
 
 
 def absolute_topic(name: str) -> str:
-    """Return a topic name resolved against the root namespace ('cam/image_raw' -> '/cam/image_raw')."""
+    """Return a topic name resolved against the root namespace.
+
+    'cam/image_raw' -> '/cam/image_raw'.
+    """
     name = name.strip()
     return name if name.startswith('/') else '/' + name
 
@@ -82,7 +89,10 @@ def wait_for_topic_type(
     stop: threading.Event | None = None,
     period: float = 0.1,
 ) -> str | None:
-    """Return the type of ``topic`` once a publisher or subscriber announces it (None on timeout or stop)."""
+    """Return the type of ``topic`` once a publisher or subscriber announces it.
+
+    None on timeout or stop.
+    """
     deadline = None if timeout is None else time.monotonic() + timeout
     while stop is None or not stop.is_set():
         types = topic_types(node).get(topic)
@@ -101,7 +111,10 @@ def wait_for_topic_type(
 def ros_session(
     node_name: str, domain_id: int | None = None
 ) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
-    """Return a node and its executor on a private context; shut down executor, node, context on exit."""
+    """Return a node and its executor on a private context.
+
+    Shut down executor, node, context on exit.
+    """
     context = Context()
     rclpy.init(
         context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO
@@ -124,7 +137,10 @@ def ros_session(
 
 @contextmanager
 def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threading.Event]:
-    """Return an event that SIGINT and SIGTERM set (instead of raising), so loops finish cleanly; handlers restored on exit."""
+    """Return an event that SIGINT and SIGTERM set (instead of raising), so loops finish cleanly.
+
+    Handlers restored on exit.
+    """
     stop = threading.Event()
 
     def handler(signum, frame) -> None:
@@ -170,17 +186,23 @@ PLAYER_SEGMENT_FRAMES = (
 
 
 def player_segment_bytes(cameras) -> int:
-    """Return the shared-memory segment for one process playing ``cameras``: a few frames of all, at least 8 MiB."""
+    """Return the shared-memory segment for one process playing ``cameras``.
+
+    a few frames of all, at least 8 MiB.
+    """
     return max(PLAYER_SEGMENT_FRAMES * sum(4 * c.width * c.height for c in cameras), 8 << 20)
 
 
 @contextmanager
 def player_segment(segment_bytes: int, directory, localhost_only: bool = False) -> Iterator[bool]:
-    """For the participants this process creates inside: a shared-memory segment of ``segment_bytes`` (and,
-    ``localhost_only``, UDP on the loopback interface alone, for a graph on this host).
+    """For the participants this process creates inside.
 
-    Only when the user configured no Fast DDS transports (a profiles file, FASTDDS_BUILTIN_TRANSPORTS) and no
-    static peers; yields whether it applied.  The nodes, other processes, keep their defaults.
+    a shared-memory segment of ``segment_bytes`` (and, ``localhost_only``, UDP on the loopback
+    interface alone, for a graph on this host).
+
+    Only when the user configured no Fast DDS transports (a profiles file,
+    FASTDDS_BUILTIN_TRANSPORTS) and no static peers; yields whether it applied.  The nodes, other
+    processes, keep their defaults.
     """
     import os
     from pathlib import Path

@@ -1,9 +1,11 @@
-"""Per-node bookkeeping of frames in, processed and dropped (with reasons), published on /diagnostics.
+"""Per-node bookkeeping of frames in, processed and dropped (with reasons).
 
-Every frame a node does not process is counted under a reason and logged with
-a throttled one-line warning, so nothing is dropped silently.  An unexpected
-exception in a callback is caught at the node's edge (:meth:`NodeHealth.guard`),
-counted as ``internal_error`` with its first traceback logged, and the node goes on.
+Published on /diagnostics.
+
+Every frame a node does not process is counted under a reason and logged with a throttled one-line
+warning, so nothing is dropped silently.  An unexpected exception in a callback is caught at the
+node's edge (:meth:`NodeHealth.guard`), counted as ``internal_error`` with its first traceback
+logged, and the node goes on.
 """
 
 from __future__ import annotations
@@ -23,8 +25,9 @@ INTERNAL_ERROR = (
 
 
 class NodeHealth:
-    """Counters, the last problem, and a periodic DiagnosticArray for one node (safe to use from a node's
-    own threads as well as its callbacks).
+    """Counters, the last problem, and a periodic DiagnosticArray for one node.
+
+    Safe to use from a node's own threads as well as its callbacks.
     """
 
     def __init__(self, node: Node, name: str, hardware_id: str = '', period: float = 1.0) -> None:
@@ -98,7 +101,10 @@ class NodeHealth:
         return guarded
 
     def ok(self) -> None:
-        """Return a frame went through: clear the warning level (the last problem stays in the values)."""
+        """Return a frame went through.
+
+        Clear the warning level (the last problem stays in the values).
+        """
         self._level = DiagnosticStatus.OK
 
     def set(self, key: str, value) -> None:

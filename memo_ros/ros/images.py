@@ -18,8 +18,10 @@ def image_message_to_grey(msg) -> np.ndarray:
 
 
 def image_message_to_frame(msg, colour: bool = True) -> np.ndarray:
-    """Return a sensor_msgs/Image as the sequence segmenter takes it: (H, W, 3) for colour encodings (alpha
-    dropped, channel order kept: the model only compares a camera with itself), (H, W) grey otherwise.
+    """Return a sensor_msgs/Image as the sequence segmenter takes it.
+
+    (H, W, 3) for colour encodings (alpha dropped, channel order kept: the model only compares a
+    camera with itself), (H, W) grey otherwise.
     """
     pixels = image_to_array(
         msg.encoding, msg.height, msg.width, msg.step, msg.data, msg.is_bigendian

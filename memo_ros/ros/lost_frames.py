@@ -16,7 +16,10 @@ RECENT = 512  # stamps remembered on each side: far more than any queue holds
 
 
 class LostFrameCounter:
-    """Matches announced stamps (camera_info) with received ones (images); returns newly lost stamps."""
+    """Matches announced stamps (camera_info) with received ones (images).
+
+    Returns newly lost stamps.
+    """
 
     def __init__(self, recent: int = RECENT) -> None:
         self._settled: deque[int] = deque(maxlen=recent)  # received or already counted lost
@@ -26,8 +29,10 @@ class LostFrameCounter:
         self.newest_received: int | None = None
 
     def announced(self, stamp: int) -> list[int]:
-        """Return a frame was announced; ``[stamp]`` when its image is already known lost, else [] (also for an
-        unstamped announcement, stamp 0, which names no frame).
+        """Return a frame was announced.
+
+        ``[stamp]`` when its image is already known lost, else [] (also for an unstamped
+        announcement, stamp 0, which names no frame).
         """
         if stamp == 0 or stamp in self._settled_set or stamp in self._waiting:
             return []
@@ -42,7 +47,10 @@ class LostFrameCounter:
         return []
 
     def received(self, stamp: int) -> list[int]:
-        """Return an image arrived; the announced stamps before it that had none, oldest first (now lost)."""
+        """Return an image arrived.
+
+        The announced stamps before it that had none, oldest first (now lost).
+        """
         self._settle(stamp)
         self._waiting.discard(stamp)
         if self.newest_received is None or stamp > self.newest_received:
@@ -54,7 +62,10 @@ class LostFrameCounter:
         return lost
 
     def _settle(self, stamp: int) -> None:
-        """Remember ``stamp`` as accounted for (received or lost), forgetting the oldest beyond ``recent``."""
+        """Remember ``stamp`` as accounted for (received or lost).
+
+        Forgetting the oldest beyond ``recent``.
+        """
         if stamp in self._settled_set:
             return
         if len(self._settled) == self._settled.maxlen:

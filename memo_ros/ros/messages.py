@@ -1,9 +1,11 @@
-"""Generic rclpy message helpers: import a type by name, and render any message as YAML, a dict or flat CSV columns.
+"""Generic rclpy message helpers.
 
-They walk ``get_fields_and_field_types()`` and stand in for ``rosidl_runtime_py``
-(not in the pip wheels).  The YAML looks like ``ros2 topic echo``'s, with short
-numeric arrays inline, long ones (image and cloud ``data``) abbreviated, and a
-PointCloud2 additionally decoded into a table of its points.
+Import a type by name, and render any message as YAML, a dict or flat CSV columns.
+
+They walk ``get_fields_and_field_types()`` and stand in for ``rosidl_runtime_py`` (not in the pip
+wheels).  The YAML looks like ``ros2 topic echo``'s, with short numeric arrays inline, long ones
+(image and cloud ``data``) abbreviated, and a PointCloud2 additionally decoded into a table of its
+points.
 """
 
 from __future__ import annotations
@@ -52,7 +54,10 @@ def stamp_to_ns(stamp) -> int:
 
 
 def import_message_type(type_name: str) -> type:
-    """Return the rclpy message class for 'pkg/msg/Name' (also 'pkg/Name'), with a clear error when unavailable."""
+    """Return the rclpy message class for 'pkg/msg/Name' (also 'pkg/Name').
+
+    With a clear error when unavailable.
+    """
     parts = type_name.strip().split('/')
     if len(parts) == 2:
         parts.insert(1, 'msg')
@@ -79,7 +84,10 @@ def is_message(value) -> bool:
 
 
 def element_type(field_type: str) -> str:
-    """Return the element type of an array field type ('sequence<double, 4>' or 'double[9]' -> 'double')."""
+    """Return the element type of an array field type.
+
+    'sequence<double, 4>' or 'double[9]' -> 'double'.
+    """
     match = re.fullmatch(r'sequence<([^,>]+)(?:,\s*\d+)?>', field_type)
     if match:
         return match.group(1)
@@ -200,7 +208,10 @@ def _emit_fields(msg, pad: str, lines: list[str], truncate: int | None) -> None:
 
 
 def format_cell(value) -> str:
-    """Return a table or CSV cell: integers exact, floats in the shortest form that round-trips at their precision."""
+    """Return a table or CSV cell.
+
+    Integers exact, floats in the shortest form that round-trips at their precision.
+    """
     if isinstance(value, np.floating):
         return str(value)
     if isinstance(value, float):

@@ -1,4 +1,7 @@
-"""The one ``main`` every node shares: init, build, spin, and a one-line error for a refused configuration."""
+"""The one ``main`` every node shares.
+
+Init, build, spin, and a one-line error for a refused configuration.
+"""
 
 from __future__ import annotations
 

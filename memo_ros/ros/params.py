@@ -101,7 +101,10 @@ def declare(
 
 
 def validator(params: tuple[Param, ...], check: Callable[[dict], object] | None = None):
-    """Return an on-set-parameters callback refusing out-of-range values, and combinations ``check`` refuses, with a reason."""
+    """Return an on-set-parameters callback refusing out-of-range values.
+
+    And combinations ``check`` refuses, with a reason.
+    """
     table = {p.name: p for p in params}
 
     def callback(changes) -> SetParametersResult:

@@ -57,7 +57,10 @@ def dtype_from_fields(fields, point_step: int, big_endian: bool = False) -> np.d
 
 
 def pointcloud_to_array(msg) -> np.ndarray:
-    """All points of ``msg`` as a 1-D structured array (row-major over height x width), copied out of the message."""
+    """All points of ``msg`` as a 1-D structured array (row-major over height x width).
+
+    Copied out of the message.
+    """
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
     dtype = dtype_from_fields(msg.fields, point_step, bool(msg.is_bigendian))
@@ -91,7 +94,8 @@ def fields_from_dtype(dtype: np.dtype) -> list[PointField]:
         )
         if len(shape) > 1:
             raise ValueError(
-                f'field {name!r} has shape {shape}; only scalars and 1-D sub-arrays fit a PointField'
+                f'field {name!r} has shape {shape}; only scalars and 1-D sub-arrays fit a '
+                'PointField'
             )
         datatype = NUMPY_TO_FIELD.get(base.newbyteorder('<'))
         if datatype is None:
@@ -152,7 +156,10 @@ def array_to_pointcloud(array: np.ndarray, header: Header | None = None) -> Poin
 
 
 def table_columns(array: np.ndarray) -> tuple[list[str], list[np.ndarray]]:
-    """Column names and 1-D columns of a structured array; a sub-array field ``n`` becomes ``n[0]``, ``n[1]``..."""
+    """Column names and 1-D columns of a structured array.
+
+    a sub-array field ``n`` becomes ``n[0]``, ``n[1]``...
+    """
     names, columns = [], []
     for name in array.dtype.names:
         values = array[name]

@@ -1,10 +1,12 @@
-"""The studio (cameras, body, initial pose) as a node receives it: nested parameters from the params file.
+"""The studio (cameras, body, initial pose) as a node receives it.
 
-``--params-file studio.yaml`` hands every node the shared ``/**`` block as
-dotted parameter overrides (``studio.cam_front.K``, ``body.torso.length``, ...).
-:func:`studio_from_node` folds them back into the file's mapping and parses it
-with the same code as the tools, so a node and ``memo-ros`` never disagree.  The
-overrides are read, not declared, so they do not clutter ``ros2 param list``.
+Nested parameters from the params file.
+
+``--params-file studio.yaml`` hands every node the shared ``/**`` block as dotted parameter
+overrides (``studio.cam_front.K``, ``body.torso.length``, ...). :func:`studio_from_node` folds them
+back into the file's mapping and parses it with the same code as the tools, so a node and
+``memo-ros`` never disagree.  The overrides are read, not declared, so they do not clutter ``ros2
+param list``.
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ SHARED_ROOTS = ('studio', 'body', 'initial_pose')
 
 
 def studio_from_node(node: Node) -> Studio:
-    """Return the studio described by the node's ``studio.*``, ``body.*`` and ``initial_pose.*`` parameters."""
+    """Return the studio described by the node's ``studio.*``.
+
+    ``body.*`` and ``initial_pose.*`` parameters.
+    """
     nested: dict = {}
     # rclpy keeps the params-file values it has not declared yet in _parameter_overrides
     for name, param in {**node._parameter_overrides, **node._parameters}.items():

@@ -1,11 +1,12 @@
-"""Print messages of a topic as YAML like `ros2 topic echo`, or as CSV rows; PointCloud2 points as a table.
+"""Print messages of a topic as YAML like `ros2 topic echo`, or as CSV rows.
 
-The type comes from the graph unless given.  YAML mode abbreviates long
-numeric arrays (image and cloud ``data``) unless ``--full`` and adds a table of
-a cloud's points (``--max-rows``).  CSV mode prints a header line of flattened
-field names, then one line per message, or one line per point of a cloud.
-A camera assignment (``/memo/camera_assignment``) prints as its part x camera
-table (``--full``: the raw DiagnosticArray), in CSV one line per part and camera.
+PointCloud2 points as a table.
+
+The type comes from the graph unless given.  YAML mode abbreviates long numeric arrays (image and
+cloud ``data``) unless ``--full`` and adds a table of a cloud's points (``--max-rows``).  CSV mode
+prints a header line of flattened field names, then one line per message, or one line per point of
+a cloud. A camera assignment (``/memo/camera_assignment``) prints as its part x camera table
+(``--full``: the raw DiagnosticArray), in CSV one line per part and camera.
 """
 
 from __future__ import annotations
@@ -196,7 +197,10 @@ def _printer(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    """Subscribe to the topic and print messages until the count is reached, a timeout, or a signal."""
+    """Subscribe to the topic and print messages until the count is reached, a timeout.
+
+    Or a signal.
+    """
     from memo_ros.tools.cli import CliError
 
     wanted = _check(args)

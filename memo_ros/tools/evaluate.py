@@ -71,7 +71,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '--studio',
         type=Path,
         help='studio YAML (body height, cameras for overlays, contour_node '
-        'settings); default: TRUTH.yaml beside the truth bag (or IMAGES.yaml), else the shipped body',
+        'settings); default: TRUTH.yaml beside the truth bag (or IMAGES.yaml), else the shipped '
+        'body',
     )
     parser.add_argument('--tolerance-ms', type=float, default=1.0, help='stamp matching tolerance')
     parser.add_argument(
@@ -316,7 +317,8 @@ def print_report(summary: dict, parts: list[dict]) -> None:
     for row in parts:
         print(
             f'{row["part"]:<12} {row["joint_mm_mean"]:>13.1f} {row["joint_mm_max"]:>12.1f} '
-            f'{row["translation_pct_height_max"]:>13.2f} {row["axis_deg_mean"]:>13.2f} {row["axis_deg_max"]:>12.2f}'
+            f'{row["translation_pct_height_max"]:>13.2f} {row["axis_deg_mean"]:>13.2f} '
+            f'{row["axis_deg_max"]:>12.2f}'
         )
     print()
     for key, value in summary.items():

@@ -135,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
     unit = '' if args.calibration_unit == 'm' else f' --calibration-unit {args.calibration_unit}'
     print(
         f'import with  memo-ros import videos {" ".join(str(p) for p in result.videos.values())} '
-        f'--calibration {result.calibration[0] if len(result.calibration) == 1 else args.out}{unit}{offsets} '
+        '--calibration '
+        f'{result.calibration[0] if len(result.calibration) == 1 else args.out}{unit}{offsets} '
         '--out BAG'
     )
     return 0
@@ -263,7 +264,8 @@ def export_videos(
         if track.filled or track.skipped:
             notes.append(
                 f'{name}: {track.filled} missing frames filled with the previous image, '
-                f'{track.skipped} images dropped as closer than 1/{rig.frame_rate:g} s to the previous one'
+                f'{track.skipped} images dropped as closer than 1/{rig.frame_rate:g} s to the '
+                'previous one'
             )
     exported = [c for c in cameras if c.name in tracks]
     calibration = write_calibration(exported, out / DEFAULT_NAMES[fmt], fmt, unit)

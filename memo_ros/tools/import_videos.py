@@ -176,7 +176,8 @@ def run(args: argparse.Namespace) -> int:
     print(f'studio     {result.studio}  ({result.frame_rate:g} frames/s)')
     for cam in result.cameras:
         print(
-            f'camera     {cam.name}: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, {cam.distortion_model}, '
+            f'camera     {cam.name}: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, '
+            f'{cam.distortion_model}, '
             f'{np.linalg.norm(cam.t_world_cam):.2f} m from the origin'
         )
     print(f'time       {result.seconds:.1f} s ({total / max(result.seconds, 1e-9):.1f} images/s)')
@@ -227,7 +228,10 @@ def parse_offsets(items: list[str]) -> dict[str, float]:
 def match_videos(
     videos: list[Path], cameras: list[Camera], names: list[str] | None = None
 ) -> list[Camera]:
-    """Return the calibration camera of each video: by ``names``, else by file stem if all stems match, else by order."""
+    """Return the calibration camera of each video.
+
+    By ``names``, else by file stem if all stems match, else by order.
+    """
     by_name = {c.name: c for c in cameras}
     if names is not None:
         if len(names) != len(videos):
@@ -260,7 +264,10 @@ def match_videos(
 def fit_camera(
     cam: Camera, width: int, height: int, size_known: bool, crop_tolerance: int, video: Path
 ) -> tuple[Camera, str | None]:
-    """Return the camera at the video's frame size, and a note when that needed an assumption; else a one-line error."""
+    """Return the camera at the video's frame size, and a note when that needed an assumption.
+
+    Else a one-line error.
+    """
     if (cam.width, cam.height) == (width, height):
         return cam, None
     resized = Camera(
@@ -278,8 +285,10 @@ def fit_camera(
     dw, dh = cam.width - width, cam.height - height
     if 0 <= dw <= crop_tolerance and 0 <= dh <= crop_tolerance:
         return resized, (
-            f'{video.name} is {width}x{height}, camera {cam.name} calibrated at {cam.width}x{cam.height}: '
-            f'taken as {dw} columns / {dh} rows cropped at the right / bottom, intrinsics unchanged'
+            f'{video.name} is {width}x{height}, camera {cam.name} calibrated at '
+            f'{cam.width}x{cam.height}: '
+            f'taken as {dw} columns / {dh} rows cropped at the right / bottom, intrinsics '
+            'unchanged'
         )
     raise VideoImportError(
         f'{video} is {width}x{height} but camera {cam.name} is calibrated for '
@@ -288,7 +297,10 @@ def fit_camera(
 
 
 def scaled_camera(cam: Camera, scale: float) -> Camera:
-    """Return the camera of images resized by ``scale`` with cv2.resize: Camera.scaled, per axis when sizes round."""
+    """Return the camera of images resized by ``scale`` with cv2.resize.
+
+    Camera.scaled, per axis when sizes round.
+    """
     small = cam.scaled(scale)
     sx, sy = small.width / cam.width, small.height / cam.height
     if sx == scale and sy == scale:
@@ -312,7 +324,10 @@ def scaled_camera(cam: Camera, scale: float) -> Camera:
 
 
 def quiet_ffmpeg() -> None:
-    """Keep FFmpeg's own log lines off stderr (our errors say what failed in one line); set before first use."""
+    """Keep FFmpeg's own log lines off stderr (our errors say what failed in one line).
+
+    Set before first use.
+    """
     os.environ.setdefault(
         'OPENCV_FFMPEG_LOGLEVEL', '-8'
     )  # AV_LOG_QUIET, unless the user asks for more

@@ -76,9 +76,11 @@ def graph_commands(
     log_level: str = 'info',
     role: str = 'all',
 ) -> list[NodeProcess]:
-    """Return the processes of the graph: one contour_node per camera, in its camera's namespace, and the
-    articulated tracker with its camera selector for a multi-camera studio (or one whose file configures
-    ``tracker_node``); ``role`` cameras keeps the contour nodes only, tracking the others.
+    """Return the processes of the graph.
+
+    One contour_node per camera, in its camera's namespace, and the articulated tracker with its
+    camera selector for a multi-camera studio (or one whose file configures ``tracker_node``);
+    ``role`` cameras keeps the contour nodes only, tracking the others.
     """
     if role not in ROLES:
         raise ValueError(f'unknown role {role!r}; one of {", ".join(ROLES)}')

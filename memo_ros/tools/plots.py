@@ -1,9 +1,10 @@
-"""PNG plots of an evaluation: joint curves, per-frame errors and model outlines over camera images.
+"""PNG plots of an evaluation.
 
-``joint_curves.png`` shows estimated against true generalized coordinates over
-the frame number (Rohr Figs. 26, 32-33), ``errors.png`` the per-frame errors,
-and ``overlay_<cam>_<frame>.png`` the estimated model's contours drawn on the
-camera image (Rohr Fig. 27).
+Joint curves, per-frame errors and model outlines over camera images.
+
+``joint_curves.png`` shows estimated against true generalized coordinates over the frame number
+(Rohr Figs. 26, 32-33), ``errors.png`` the per-frame errors, and ``overlay_<cam>_<frame>.png`` the
+estimated model's contours drawn on the camera image (Rohr Fig. 27).
 """
 
 from __future__ import annotations
@@ -46,7 +47,10 @@ def write_plots(
     studio,
     truth_bag: str | Path,
 ) -> list[Path]:
-    """Write joint curves, error curves and (with a studio) image overlays into ``directory``; return the paths."""
+    """Write joint curves, error curves and (with a studio) image overlays into ``directory``.
+
+    Return the paths.
+    """
     import matplotlib
 
     matplotlib.use('Agg')
@@ -105,13 +109,19 @@ def _unit(name: str) -> tuple[float, str]:
 
 
 def _break_wraps(x: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Insert NaN where a cyclic value (gait phase) wraps, so its line does not jump across the plot."""
+    """Insert NaN where a cyclic value (gait phase) wraps.
+
+    So its line does not jump across the plot.
+    """
     jumps = np.flatnonzero(np.abs(np.diff(values)) > 0.5) + 1
     return np.insert(x.astype(float), jumps, np.nan), np.insert(values, jumps, np.nan)
 
 
 def _joint_curves(path: Path, truth, estimate, body, truth_stamps: np.ndarray) -> Path:
-    """Grid of small plots: each varying coordinate's truth (line) and estimate (markers) over the frame."""
+    """Grid of small plots.
+
+    Each varying coordinate's truth (line) and estimate (markers) over the frame.
+    """
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
@@ -145,7 +155,10 @@ def _joint_curves(path: Path, truth, estimate, body, truth_stamps: np.ndarray) -
 
 
 def _error_curves(path: Path, errors: FrameErrors, truth_stamps: np.ndarray) -> Path:
-    """Per-frame MPJPE (mm), max axis error (deg) and, when walking, gait-phase error over the frame."""
+    """Per-frame MPJPE (mm), max axis error (deg) and, when walking.
+
+    Gait-phase error over the frame.
+    """
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
@@ -293,7 +306,9 @@ IOU_COLOURS = ('tab:blue', 'tab:orange', 'tab:green', 'tab:red', 'tab:purple', '
 def silhouette_overlay(
     image: np.ndarray, person: np.ndarray, label: np.ndarray, text: str = ''
 ) -> np.ndarray:
-    """BGR picture: the segmented person tinted red, each model part's outline in its colour, the model's
+    """BGR picture.
+
+    The segmented person tinted red, each model part's outline in its colour, the model's
     silhouette in yellow (the two masks the silhouette IoU compares).
     """
     import cv2
@@ -315,7 +330,10 @@ def silhouette_overlay(
 
 
 def write_silhouette_plots(directory: str | Path, report) -> list[Path]:
-    """Per kept frame: every camera's overlay and a side-by-side montage; and the IoU curves (iou.png)."""
+    """Per kept frame.
+
+    Every camera's overlay and a side-by-side montage; and the IoU curves (iou.png).
+    """
     import cv2
 
     directory = Path(directory)

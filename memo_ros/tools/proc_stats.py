@@ -1,4 +1,7 @@
-"""Process helpers of the process benchmarks: CPU time, peak memory and children from /proc (Linux), stop, log tail."""
+"""Process helpers of the process benchmarks.
+
+CPU time, peak memory and children from /proc (Linux), stop, log tail.
+"""
 
 from __future__ import annotations
 

@@ -1,14 +1,14 @@
-"""Replay a bag through the live graph: launch it, play the cameras into it, record what it publishes.
+"""Replay a bag through the live graph.
 
-``memo-ros replay BAG --out OUT`` starts ``memo-ros launch STUDIO --reliable-images``
-(the studio defaults to ``BAG.yaml``, as the simulator writes it), plays the
-bag's image and camera_info topics over DDS and records every output topic to
-the mcap bag OUT.  With ``--rate 0`` (the default) playback is paced by the
-graph itself: before frame t+1 goes out, the player waits until the tracker
-said frame t is done on ``/memo/processed`` (or ``--frame-timeout`` passed), so
-the result does not depend on the machine's load.  ``--rate R`` plays with the
-recorded timing instead.  It exits when the input is exhausted and the graph
-has drained; the node logs go to OUT.log.
+Launch it, play the cameras into it, record what it publishes.
+
+``memo-ros replay BAG --out OUT`` starts ``memo-ros launch STUDIO --reliable-images`` (the studio
+defaults to ``BAG.yaml``, as the simulator writes it), plays the bag's image and camera_info topics
+over DDS and records every output topic to the mcap bag OUT.  With ``--rate 0`` (the default)
+playback is paced by the graph itself: before frame t+1 goes out, the player waits until the
+tracker said frame t is done on ``/memo/processed`` (or ``--frame-timeout`` passed), so the result
+does not depend on the machine's load.  ``--rate R`` plays with the recorded timing instead.  It
+exits when the input is exhausted and the graph has drained; the node logs go to OUT.log.
 """
 
 from __future__ import annotations
@@ -122,7 +122,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _bag_topics(bag: Path) -> dict[str, str]:
-    """Return the bag's topics, read before anything is launched: an unreadable bag is a one-line error."""
+    """Return the bag's topics, read before anything is launched.
+
+    An unreadable bag is a one-line error.
+    """
     from memo_ros.ros.bagio import BagError, bag_topics
     from memo_ros.tools.cli import CliError
 
@@ -133,13 +136,19 @@ def _bag_topics(bag: Path) -> dict[str, str]:
 
 
 def frame_stamp(data: bytes) -> int:
-    """Header stamp (ns) of a CDR message whose first field is a std_msgs/Header (Image, CameraInfo)."""
+    """Header stamp (ns) of a CDR message whose first field is a std_msgs/Header.
+
+    Image, CameraInfo.
+    """
     sec, nanosec = struct.unpack_from('<iI', data, 4)  # after the 4-byte encapsulation header
     return sec * 1_000_000_000 + nanosec
 
 
 class Pacer:
-    """Back-pressure: before a new frame goes out, wait until the graph said the previous one is done."""
+    """Back-pressure.
+
+    Before a new frame goes out, wait until the graph said the previous one is done.
+    """
 
     def __init__(self, timeout: float) -> None:
         self.timeout = timeout
@@ -179,8 +188,9 @@ def replay(
     launch_graph: bool = True,
     extra_topics: list[str] | None = None,
 ) -> dict:
-    """Launch the graph for ``studio_file`` (unless it runs already), play ``bag`` into it, record its outputs
-    to ``out``; a report.
+    """Launch the graph for ``studio_file`` (unless it runs already), play ``bag`` into it.
+
+    Record its outputs to ``out``; a report.
     """
     from std_msgs.msg import Header
 
@@ -270,8 +280,9 @@ def replay(
 
 
 def _stop_spinner(stop: threading.Event, spinner: threading.Thread) -> None:
-    """Stop the spin thread and wait for it: destroying entities or the context under a running spin ends
-    the process with a C++ terminate.
+    """Stop the spin thread and wait for it.
+
+    Destroying entities or the context under a running spin ends the process with a C++ terminate.
     """
     stop.set()
     if spinner.is_alive():
@@ -279,7 +290,10 @@ def _stop_spinner(stop: threading.Event, spinner: threading.Thread) -> None:
 
 
 def _spin(executor, stop: threading.Event, recorder) -> None:
-    """Spin the replay node; every half second let the recorder subscribe output topics that appeared."""
+    """Spin the replay node.
+
+    Every half second let the recorder subscribe output topics that appeared.
+    """
     next_discovery = 0.0
     while not stop.is_set():
         executor.spin_once(timeout_sec=0.05)

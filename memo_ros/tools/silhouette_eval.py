@@ -1,11 +1,12 @@
-"""`memo-ros evaluate` without ground truth: silhouette IoU per camera and frames lost, from the bags.
+"""`memo-ros evaluate` without ground truth.
 
-The person is segmented again from the recording's images exactly as the
-graph's contour nodes did it (the studio's contour_node parameters, the same
-background learnt from ``background_bag``, the tracked body of the previous
-estimate as the tracked region), the estimated model (its dimensions from
-``/memo/markers``) is rendered into every camera, and the two masks are
-compared frame by frame.  ``/memo/processed`` says what became of each frame.
+Silhouette IoU per camera and frames lost, from the bags.
+
+The person is segmented again from the recording's images exactly as the graph's contour nodes did
+it (the studio's contour_node parameters, the same background learnt from ``background_bag``, the
+tracked body of the previous estimate as the tracked region), the estimated model (its dimensions
+from ``/memo/markers``) is rendered into every camera, and the two masks are compared frame by
+frame.  ``/memo/processed`` says what became of each frame.
 """
 
 from __future__ import annotations
@@ -44,7 +45,10 @@ class ModelShape:
 
 @dataclass
 class SilhouetteReport:
-    """Per frame and camera IoU (NaN: not tracked), the cameras' summaries, lost frames, kept masks."""
+    """Per frame and camera IoU (NaN: not tracked), the cameras' summaries, lost frames.
+
+    Kept masks.
+    """
 
     cameras: list[str]
     stamps: np.ndarray  # (F,) image stamps, ns
@@ -59,7 +63,10 @@ class SilhouetteReport:
 
 
 def model_shape(estimate: Path, body: Body) -> ModelShape:
-    """Return the body the tracker used: from its first /memo/markers (one cylinder per part), else ``body``."""
+    """Return the body the tracker used.
+
+    From its first /memo/markers (one cylinder per part), else ``body``.
+    """
     from memo_ros.ros.bagio import bag_topics, read_messages
 
     if MARKERS_TOPIC in bag_topics(estimate):
@@ -221,13 +228,15 @@ def print_silhouette_report(report: SilhouetteReport) -> None:
     print(f'{"camera":<10} {"frames":>6} {"IoU mean":>9} {"median":>7} {"min":>6}')
     for name, row in report.summary.items():
         print(
-            f'{name:<10} {row["frames"]:>6} {row["mean"]:>9.3f} {row["median"]:>7.3f} {row["min"]:>6.3f}'
+            f'{name:<10} {row["frames"]:>6} {row["mean"]:>9.3f} {row["median"]:>7.3f} '
+            f'{row["min"]:>6.3f}'
         )
     lost = report.lost
     print()
     print(f'{"frames":<28} {len(report.stamps)}')
     print(
-        f'{"first tracked frame":<28} {"none" if lost.first_tracked is None else lost.first_tracked}'
+        f'{"first tracked frame":<28} '
+        f'{"none" if lost.first_tracked is None else lost.first_tracked}'
     )
     reasons = ', '.join(f'{k} {v}' for k, v in lost.reasons.items())
     print(

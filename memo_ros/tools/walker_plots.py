@@ -1,10 +1,16 @@
-"""Rohr's figures for a walker run (``memo-ros evaluate --plots`` when the estimate has walker measurements).
+"""Rohr's figures for a walker run.
 
-- ``walker_estimates.png`` (Fig. 26): X, Y and pose over the frame number; left the per-frame grid-search
+``memo-ros evaluate --plots`` when the estimate has walker measurements.
+
+- ``walker_estimates.png`` (Fig. 26): X, Y and pose over the frame number; left the per-frame
+  grid-search
   measurements (``/memo/walker/measurement``), right the Kalman estimates, each with the truth;
-- ``walker_contours.png`` (Fig. 27): the visible model contours of the estimate over four camera images;
-- ``similarity_curve.png`` (Fig. 19): s(p) over the whole cycle with the 3D position fixed at the estimate,
-  for one frame whose edge lines are recomputed from its image with the studio's contour_node settings.
+- ``walker_contours.png`` (Fig. 27): the visible model contours of the estimate over four camera
+  images;
+- ``similarity_curve.png`` (Fig. 19): s(p) over the whole cycle with the 3D position fixed at the
+  estimate,
+  for one frame whose edge lines are recomputed from its image with the studio's contour_node
+  settings.
 """
 
 from __future__ import annotations
@@ -70,7 +76,10 @@ def _frame(stamps, truth_stamps: np.ndarray) -> np.ndarray:
 
 
 def _vertical_offset(body, joints: dict[int, dict[str, float]], stamps) -> np.ndarray:
-    """Y: the pelvis height minus the walking model's vertical displacement at the frame's gait phase."""
+    """Y.
+
+    The pelvis height minus the walking model's vertical displacement at the frame's gait phase.
+    """
     from memo_ros.core.walking.gait import WalkingModel
 
     walking = WalkingModel(body)
@@ -136,7 +145,10 @@ def _estimates_figure(
 def _contours_figure(
     path: Path, estimate, body, studio, truth_bag: Path, truth_stamps: np.ndarray
 ) -> Path:
-    """Visible model contours of the estimate on four images, cropped around the walker, side by side."""
+    """Visible model contours of the estimate on four images, cropped around the walker.
+
+    Side by side.
+    """
     import cv2
 
     from memo_ros.core.walking.model_contours import visible_contours
@@ -191,7 +203,10 @@ def _contours_figure(
 def _similarity_figure(
     path: Path, truth, estimate, body, studio, truth_bag: Path, truth_stamps: np.ndarray
 ) -> Path | None:
-    """s(p) over the whole cycle at the estimate's 3D position for the middle estimated frame (Fig. 19)."""
+    """s(p) over the whole cycle at the estimate's 3D position for the middle estimated frame.
+
+    Fig. 19.
+    """
     import matplotlib.pyplot as plt
 
     from memo_ros.core.vision.contours import ContourPipeline

@@ -74,7 +74,10 @@ def model_joints(origins: np.ndarray) -> np.ndarray:
 
 
 def heading(joints: np.ndarray) -> np.ndarray:
-    """Return where a body faces about world z, rad (...,): across the hips and shoulders, right to left, x up."""
+    """Return where a body faces about world z, rad (...,).
+
+    Across the hips and shoulders, right to left, x up.
+    """
     left = joints[..., [JOINTS.index('hip_l'), JOINTS.index('shoulder_l')], :].mean(-2)
     right = joints[..., [JOINTS.index('hip_r'), JOINTS.index('shoulder_r')], :].mean(-2)
     across = left - right

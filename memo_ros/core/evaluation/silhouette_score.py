@@ -36,7 +36,10 @@ class LostFrames:
 
 
 def lost_after_start(outcomes: list[str | None]) -> LostFrames:
-    """Frames not tracked after the first tracked one, from each frame's outcome in order (None: no report)."""
+    """Frames not tracked after the first tracked one, from each frame's outcome in order.
+
+    None: no report.
+    """
     first = next((k for k, o in enumerate(outcomes) if o == TRACKED), None)
     if first is None:
         return LostFrames(None, 0, 0, {})
@@ -46,7 +49,10 @@ def lost_after_start(outcomes: list[str | None]) -> LostFrames:
 
 
 def iou_summary(iou: np.ndarray, cameras: list[str]) -> dict[str, dict[str, float | int]]:
-    """Per camera (columns of ``iou``, frames in rows, NaN where not scored): frames, mean, median, min."""
+    """Per camera (columns of ``iou``, frames in rows, NaN where not scored).
+
+    Frames, mean, median, min.
+    """
     summary = {}
     for c, name in enumerate(cameras):
         values = iou[:, c][np.isfinite(iou[:, c])]

@@ -37,7 +37,10 @@ def normalised(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
 
 
 def _dlt(P: np.ndarray, xy: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """Weighted DLT: points (N, 3) from projections P (C, 3, 4), coordinates (N, C, 2), weights (N, C)."""
+    """Weighted DLT.
+
+    Points (N, 3) from projections P (C, 3, 4), coordinates (N, C, 2), weights (N, C).
+    """
     rows_x = xy[..., 0, None] * P[None, :, 2, :] - P[None, :, 0, :]  # (N, C, 4)
     rows_y = xy[..., 1, None] * P[None, :, 2, :] - P[None, :, 1, :]
     A = np.concatenate([rows_x, rows_y], axis=1) * np.concatenate([weight, weight], 1)[..., None]

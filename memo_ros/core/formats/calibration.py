@@ -83,7 +83,10 @@ class Calibration:
 
 # ----------------------------------------------------------------------------- helpers
 def ros_name(raw: str, index: int) -> str:
-    """Return a valid ROS name token for a camera: invalid characters to '_', 'cam' prefixed to a leading digit."""
+    """Return a valid ROS name token for a camera.
+
+    Invalid characters to '_', 'cam' prefixed to a leading digit.
+    """
     name = re.sub(r'_+', '_', re.sub(r'[^A-Za-z0-9_]', '_', str(raw).strip())).strip('_')
     if not name:
         return f'cam{index + 1:02d}'
@@ -165,7 +168,8 @@ def _far_camera_note(cameras: list[Camera], unit: str, option: str) -> list[str]
     far = max(float(np.linalg.norm(c.t_world_cam)) for c in cameras)
     if far > FAR_CAMERA_M:
         return [
-            f'a camera is {far:.0f} m from the world origin: is the translation unit really {unit!r}? '
+            f'a camera is {far:.0f} m from the world origin: is the translation unit really '
+            f'{unit!r}? '
             f'(set {option})'
         ]
     return []
@@ -178,7 +182,10 @@ def _num(value: float) -> str:
 
 # ----------------------------------------------------------------------------- Qualisys
 def read_qualisys(path: str | Path, video_only: bool = True) -> list[Camera]:
-    """Cameras of a Qualisys ``.qca.txt``, read as Pose2Sim does, in natural order of their serials."""
+    """Cameras of a Qualisys ``.qca.txt``, read as Pose2Sim does.
+
+    In natural order of their serials.
+    """
     path = Path(path)
     try:
         root = ET.parse(path).getroot()
@@ -297,7 +304,10 @@ def write_qualisys(cameras: list[Camera], path: str | Path) -> Path:
 
 # ----------------------------------------------------------------------------- TOML
 def read_toml(path: str | Path, unit: str = 'm') -> list[Camera]:
-    """Cameras of an Anipose / Pose2Sim / FreeMoCap ``calibration.toml``; ``unit`` of its translations."""
+    """Cameras of an Anipose / Pose2Sim / FreeMoCap ``calibration.toml``.
+
+    ``unit`` of its translations.
+    """
     path, factor = Path(path), _unit_factor(unit)
     try:
         with open(path, 'rb') as stream:
@@ -356,7 +366,10 @@ def read_toml(path: str | Path, unit: str = 'm') -> list[Camera]:
 
 
 def write_toml(cameras: list[Camera], path: str | Path, unit: str = 'm') -> Path:
-    """Return a ``calibration.toml`` in Anipose's layout (tables cam_0, cam_1, ...), translations in ``unit``."""
+    """Return a ``calibration.toml`` in Anipose's layout (tables cam_0, cam_1, ...).
+
+    Translations in ``unit``.
+    """
     factor = _unit_factor(unit)
     _check_names(cameras, str(path))
 
@@ -431,7 +444,10 @@ def _storage_matrix(storage, key: str, path: Path, required: bool = True) -> np.
 
 
 def read_easymocap(path: str | Path, unit: str = 'm') -> list[Camera]:
-    """Cameras of EasyMocap's ``intri.yml`` + ``extri.yml`` (``path`` is the folder or either file)."""
+    """Cameras of EasyMocap's ``intri.yml`` + ``extri.yml``.
+
+    ``path`` is the folder or either file.
+    """
     return _read_easymocap(Path(path), unit)[0]
 
 
@@ -528,7 +544,10 @@ def _load_yaml(path: Path) -> dict:
 
 
 def read_ros_camera(path: str | Path, name: str | None = None) -> Camera:
-    """Intrinsics of one ROS ``camera_calibration`` YAML (pose at the origin: see :func:`read_ros`)."""
+    """Intrinsics of one ROS ``camera_calibration`` YAML.
+
+    Pose at the origin: see :func:`read_ros`.
+    """
     path = Path(path)
     data = _load_yaml(path)
     try:
@@ -553,7 +572,10 @@ def read_ros_camera(path: str | Path, name: str | None = None) -> Camera:
 
 
 def read_ros(path: str | Path, poses: str | Path | None = None) -> list[Camera]:
-    """Cameras of ROS calibration YAMLs posed by a ``poses.yaml``: the folder, the poses file or one camera file."""
+    """Cameras of ROS calibration YAMLs posed by a ``poses.yaml``.
+
+    The folder, the poses file or one camera file.
+    """
     path = Path(path)
     single = single_name = None
     if path.is_dir():
@@ -630,8 +652,10 @@ def write_ros(cameras: list[Camera], folder: str | Path) -> list[Path]:
         }
     path = folder / POSES_FILE
     header = (
-        '# memo_ros camera poses: optical frame (z forward, x right, y down) of each camera in world,\n'
-        '# position in metres, orientation quaternion [qx, qy, qz, qw]; intrinsics in <camera>.yaml\n'
+        '# memo_ros camera poses: optical frame (z forward, x right, y down) of each camera in '
+        'world,\n'
+        '# position in metres, orientation quaternion [qx, qy, qz, qw]; intrinsics in '
+        '<camera>.yaml\n'
     )
     path.write_text(
         header
@@ -689,7 +713,10 @@ def detect_format(path: str | Path) -> str:
 def load_calibration(
     path: str | Path, fmt: str | None = None, unit: str = 'm', poses: str | Path | None = None
 ) -> Calibration:
-    """Cameras of a calibration in any known format (detected unless ``fmt``), with caveats as notes."""
+    """Cameras of a calibration in any known format (detected unless ``fmt``).
+
+    With caveats as notes.
+    """
     path = Path(path)
     fmt = fmt or detect_format(path)
     size_known, notes = True, []
@@ -734,7 +761,10 @@ def read_calibration(path: str | Path, **options) -> list[Camera]:
 def write_calibration(
     cameras: list[Camera], path: str | Path, fmt: str, unit: str = 'm'
 ) -> list[Path]:
-    """Write ``cameras`` as ``fmt``: a file (qualisys, toml) or a folder (easymocap, ros); the paths written."""
+    """Write ``cameras`` as ``fmt``.
+
+    a file (qualisys, toml) or a folder (easymocap, ros); the paths written.
+    """
     if fmt == 'qualisys':
         return [write_qualisys(cameras, path)]
     if fmt == 'toml':

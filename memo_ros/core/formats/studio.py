@@ -174,7 +174,10 @@ def _camera_from_entry(name: str, entry, source: str) -> Camera:
 
 
 def studio_path(path_or_name: str | Path) -> Path:
-    """Return a studio file's path: as given, or a shipped studio by name (e.g. 'studio_orthogonal')."""
+    """Return a studio file's path.
+
+    As given, or a shipped studio by name (e.g. 'studio_orthogonal').
+    """
     path = Path(path_or_name)
     if not path.is_file() and path.suffix == '' and not path.parent.parts:
         from memo_ros.paths import config_path

@@ -1,1 +1,4 @@
-"""Geometry both papers share: rotations, the body of 14 elliptic cylinders, cameras, ray casting, surfaces."""
+"""Geometry both papers share.
+
+Rotations, the body of 14 elliptic cylinders, cameras, ray casting, surfaces.
+"""

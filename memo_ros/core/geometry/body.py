@@ -163,10 +163,12 @@ class Body:
         return q
 
     def forward_kinematics(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Part poses in world from generalized coordinates: rotations (..., 14, 3, 3), origins (..., 14, 3).
+        """Part poses in world from generalized coordinates.
 
-        ``q`` may carry leading batch dimensions.  The chain is X_child =
-        X_parent * T(offset) * R_rest * R_joint(q) (homogeneous transforms, Rohr §3.1).
+        Rotations (..., 14, 3, 3), origins (..., 14, 3).
+
+        ``q`` may carry leading batch dimensions.  The chain is X_child = X_parent * T(offset) *
+        R_rest * R_joint(q) (homogeneous transforms, Rohr §3.1).
         """
         q = np.asarray(q, float)
         batch = q.shape[:-1]
@@ -223,7 +225,10 @@ class Body:
 
     @classmethod
     def from_dict(cls, data: dict) -> 'Body':
-        """Build a body from the YAML ``body`` mapping (parts: length, semi_axes; optional joints offsets)."""
+        """Build a body from the YAML ``body`` mapping.
+
+        Parts: length, semi_axes; optional joints offsets.
+        """
         try:
             parts = data['parts']
             shapes = {
@@ -257,7 +262,10 @@ class Body:
 def _joint_kinds(
     joints: tuple[JointSpec, ...], slices: dict[str, slice]
 ) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """Joints grouped by their axes: (axes, joint indices (m,), coordinate indices (m, axes' count))."""
+    """Joints grouped by their axes.
+
+    (axes, joint indices (m,), coordinate indices (m, axes' count)).
+    """
     kinds: dict[str, list[int]] = {}
     for k, j in enumerate(joints):
         kinds.setdefault(j.axes, []).append(k)

@@ -37,7 +37,10 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 
 
 def perspective_jacobian(Pc: np.ndarray, f: float = 1.0) -> np.ndarray:
-    """Return the paper's H (eq. 8): d(f x/z, f y/z)/d(x, y, z) for camera-frame points (..., 3) -> (..., 2, 3)."""
+    """Return the paper's H (eq. 8).
+
+    d(f x/z, f y/z)/d(x, y, z) for camera-frame points (..., 3) -> (..., 2, 3).
+    """
     Pc = np.asarray(Pc, float)
     x, y, z = Pc[..., 0], Pc[..., 1], Pc[..., 2]
     zero = np.zeros_like(z)
@@ -63,7 +66,8 @@ def _normalise_model(model: str | None, D: np.ndarray) -> tuple[str, np.ndarray]
         model = 'plumb_bob' if len(D) <= 5 else 'rational_polynomial'
     if model not in N_COEFFS:
         raise ValueError(
-            f"unsupported distortion_model {model!r} (use 'plumb_bob', 'rational_polynomial' or 'none')"
+            f"unsupported distortion_model {model!r} (use 'plumb_bob', 'rational_polynomial' or "
+            "'none')"
         )
     n = N_COEFFS[model]
     if len(D) > n:
@@ -91,7 +95,8 @@ class Camera:
         self.width, self.height = int(self.width), int(self.height)
         if self.width <= 0 or self.height <= 0:
             raise ValueError(
-                f'camera {self.name!r}: image size must be positive, got {self.width}x{self.height}'
+                f'camera {self.name!r}: image size must be positive, got '
+                f'{self.width}x{self.height}'
             )
         K = np.array(self.K, dtype=float)
         if K.size != 9:
@@ -192,7 +197,10 @@ class Camera:
         return np.stack([u, v], -1)
 
     def _normalise(self, Pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ideal normalised coordinates (x/z, y/z) (..., 2), NaN behind the camera, and the in-front mask."""
+        """Ideal normalised coordinates (x/z, y/z) (..., 2), NaN behind the camera.
+
+        And the in-front mask.
+        """
         z = Pc[..., 2]
         front = z > MIN_DEPTH
         with np.errstate(divide='ignore', invalid='ignore'):
@@ -200,16 +208,25 @@ class Camera:
         return xy, front
 
     def project_camera(self, Pc: np.ndarray) -> np.ndarray:
-        """Pixels (..., 2) of optical-frame points (..., 3) with distortion (eq. 6); NaN when z <= MIN_DEPTH."""
+        """Pixels (..., 2) of optical-frame points (..., 3) with distortion (eq. 6).
+
+        NaN when z <= MIN_DEPTH.
+        """
         xy, _ = self._normalise(np.asarray(Pc, float))
         return self._to_pixels(self._distort(xy, jacobian=False)[0])
 
     def project(self, P_world: np.ndarray) -> np.ndarray:
-        """Pixels (..., 2) of world points (..., 3) with distortion (eq. 5, 6); NaN behind the camera."""
+        """Pixels (..., 2) of world points (..., 3) with distortion (eq. 5, 6).
+
+        NaN behind the camera.
+        """
         return self.project_camera(self.world_to_camera(P_world))
 
     def projection_jacobian_camera(self, Pc: np.ndarray) -> np.ndarray:
-        """H: d(u, v)/d(optical-frame point) (..., 2, 3), eq. 8 extended by distortion and K; NaN behind."""
+        """H.
+
+        d(u, v)/d(optical-frame point) (..., 2, 3), eq. 8 extended by distortion and K; NaN behind.
+        """
         Pc = np.asarray(Pc, float)
         if (
             not self.has_distortion
@@ -221,7 +238,10 @@ class Camera:
         return A @ J_dist @ perspective_jacobian(Pc)  # eq. 8 with f = 1, then distortion, then K
 
     def _affine_perspective_jacobian(self, Pc: np.ndarray) -> np.ndarray:
-        """K[:2, :2] @ perspective_jacobian(Pc) (..., 2, 3) elementwise: the Jacobian without distortion."""
+        """K[:2, :2] @ perspective_jacobian(Pc) (..., 2, 3) elementwise.
+
+        The Jacobian without distortion.
+        """
         x, y, z = Pc[..., 0], Pc[..., 1], Pc[..., 2]
         with np.errstate(divide='ignore', invalid='ignore'):
             inv_z = np.where(z > MIN_DEPTH, 1.0 / z, np.nan)
@@ -245,7 +265,10 @@ class Camera:
 
     # ------------------------------------------------------------------ rays
     def undistort(self, xd: np.ndarray) -> np.ndarray:
-        """Ideal normalised coordinates (..., 2) of distorted ones (cv2.undistortPoints, then Newton polish)."""
+        """Ideal normalised coordinates (..., 2) of distorted ones.
+
+        cv2.undistortPoints, then Newton polish.
+        """
         xd = np.asarray(xd, float)
         if not self.has_distortion or xd.size == 0:
             return xd.copy()
@@ -272,7 +295,10 @@ class Camera:
         return xy.reshape(xd.shape)
 
     def pixel_rays(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Return unit ray directions in world (..., 3) through pixels (u, v) (broadcast), undistorted."""
+        """Return unit ray directions in world (..., 3) through pixels (u, v) (broadcast).
+
+        Undistorted.
+        """
         u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
         K = self.K
         yd = (v - K[1, 2]) / K[1, 1]  # K^-1 applied exactly, skew included
@@ -350,7 +376,10 @@ class Camera:
         D=(),
         distortion_model: str = 'plumb_bob',
     ) -> 'Camera':
-        """Return a camera at ``eye`` looking at ``target``, image y along -``up`` (REP 103 optical frame), for studios."""
+        """Return a camera at ``eye`` looking at ``target``.
+
+        Image y along -``up`` (REP 103 optical frame), for studios.
+        """
         # A view parallel to ``up`` uses the world axis least aligned with it as up instead.
         # cx, cy default to the image centre ((width - 1) / 2, (height - 1) / 2); fy to fx.
         eye, target, up = (np.asarray(a, float).reshape(3) for a in (eye, target, up))
@@ -389,7 +418,10 @@ class Camera:
 
     @classmethod
     def from_dict(cls, data: dict) -> 'Camera':
-        """Camera from a studio YAML entry (see :meth:`to_dict`); pose defaults to the world origin."""
+        """Camera from a studio YAML entry (see :meth:`to_dict`).
+
+        Pose defaults to the world origin.
+        """
         pose = data.get('pose') or {}
         q = pose.get('orientation', (0.0, 0.0, 0.0, 1.0))
         if len(q) != 4:
@@ -406,7 +438,10 @@ class Camera:
         )
 
     def to_camera_info_fields(self, frame_id: str | None = None) -> dict:
-        """sensor_msgs/CameraInfo fields as plain python (width, height, distortion_model, d, k, r, p, frame_id)."""
+        """sensor_msgs/CameraInfo fields as plain python.
+
+        Width, height, distortion_model, d, k, r, p, frame_id.
+        """
         P = np.hstack([self.K, np.zeros((3, 1))])  # monocular: P = [K | 0]
         return {
             'width': self.width,
@@ -437,7 +472,10 @@ class Camera:
         R_world_cam=None,
         t_world_cam=None,
     ) -> 'Camera':
-        """Camera from sensor_msgs/CameraInfo fields; the pose (not in CameraInfo) comes from the studio."""
+        """Camera from sensor_msgs/CameraInfo fields.
+
+        The pose (not in CameraInfo) comes from the studio.
+        """
         # r and p (rectification, rectified projection) do not affect raw-image projection:
         # length-checked only.
         # The name defaults to frame_id without an '_optical_frame' suffix.

@@ -23,7 +23,10 @@ MAX_PIXELS = 1e7  # projected corners are clipped to this many pixels before bec
 
 @dataclass
 class Rendering:
-    """What a camera sees of the body: labels (part index + 1, 0 = none), depth along the optical axis (inf = none)."""
+    """What a camera sees of the body.
+
+    Labels (part index + 1, 0 = none), depth along the optical axis (inf = none).
+    """
 
     label: np.ndarray  # (H, W) uint8
     depth: np.ndarray  # (H, W) float32, metres along the optical z axis
@@ -89,7 +92,10 @@ def render(
 
 
 def _projected_box(view: Camera, rotation, origin, axes, length, margin: int = 2):
-    """Pixel bounds (u0, u1, v0, v1) of a part's projection, whole image if it reaches behind the camera."""
+    """Pixel bounds (u0, u1, v0, v1) of a part's projection.
+
+    Whole image if it reaches behind the camera.
+    """
     if not _sane_parts(rotation[None], origin[None])[0]:
         return None
     a, b = axes
@@ -123,7 +129,10 @@ def _intersect_cylinder(
 
 
 def _hit_local(o: np.ndarray, d: np.ndarray, a, b, length, want_normals: bool):
-    """Ray-cylinder hits in part frames: origins o (3,) or (N, 3), directions d (N, 3); a, b, length scalar or (N,)."""
+    """Ray-cylinder hits in part frames.
+
+    Origins o (3,) or (N, 3), directions d (N, 3); a, b, length scalar or (N,).
+    """
     # side: (x/a)^2 + (y/b)^2 = 1 with 0 <= z <= length
     ox, oy = o[..., 0] / a, o[..., 1] / b
     dx, dy = d[:, 0] / a, d[:, 1] / b
@@ -167,12 +176,13 @@ def render_labels(
     scale: float = 1.0,
     view: Camera | None = None,
 ) -> Rendering:
-    """Label and depth images like :func:`render` (no normals), every part's box cast in one vectorised batch.
+    """Label and depth images like :func:`render` (no normals).
 
-    The same exact ray-cylinder test over the same projected boxes, so labels,
-    depths and unoccluded areas equal :func:`render`'s; it saves the per-part
-    overhead, which dominates at reduced resolution.  ``view`` is
-    ``camera.scaled(scale)`` when the caller keeps one.
+    Every part's box cast in one vectorised batch.
+
+    The same exact ray-cylinder test over the same projected boxes, so labels, depths and
+    unoccluded areas equal :func:`render`'s; it saves the per-part overhead, which dominates at
+    reduced resolution.  ``view`` is ``camera.scaled(scale)`` when the caller keeps one.
     """
     view = view if view is not None else (camera.scaled(scale) if scale != 1.0 else camera)
     rays = camera.pixel_grid_rays(scale).reshape(-1, 3)
@@ -217,7 +227,10 @@ def _projected_boxes(
     lengths: np.ndarray,
     margin: int = 2,
 ) -> tuple[np.ndarray, ...]:
-    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part as :func:`_projected_box`; empty: u0 >= u1."""
+    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part as :func:`_projected_box`; empty.
+
+    u0 >= u1.
+    """
     signs = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 1.0)])
     scale = np.concatenate([semi_axes, lengths[:, None]], axis=1)  # (P, 3)
     corners = signs[None] * scale[:, None]  # (P, 8, 3)

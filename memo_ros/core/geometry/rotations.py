@@ -29,7 +29,10 @@ def hat(v) -> np.ndarray:
 
 
 def rotvec_to_matrix(v) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3) by Rodrigues' formula, stable near 0."""
+    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3) by Rodrigues' formula.
+
+    Stable near 0.
+    """
     v = _as_float(v)
     theta2 = np.sum(v * v, axis=-1)
     theta = np.sqrt(theta2)
@@ -53,7 +56,10 @@ def matrix_to_rotvec(R) -> np.ndarray:
 
 
 def quat_to_matrix(q_xyzw) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) from quaternions (..., 4) in ROS order x, y, z, w (normalised first)."""
+    """Rotation matrices (..., 3, 3) from quaternions (..., 4) in ROS order x, y, z, w.
+
+    Normalised first.
+    """
     q = _as_float(q_xyzw)
     norm = np.linalg.norm(q, axis=-1)
     if np.any(norm < 1e-12):
@@ -71,7 +77,10 @@ def quat_to_matrix(q_xyzw) -> np.ndarray:
 
 
 def matrix_to_quat(R) -> np.ndarray:
-    """Quaternions (..., 4) in ROS order x, y, z, w of rotation matrices (..., 3, 3), sign chosen so w >= 0."""
+    """Quaternions (..., 4) in ROS order x, y, z, w of rotation matrices (..., 3, 3).
+
+    Sign chosen so w >= 0.
+    """
     R = _as_float(R)
     q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()  # scipy order is x, y, z, w too
     q = np.where(q[:, 3:4] < 0, -q, q)
@@ -79,7 +88,10 @@ def matrix_to_quat(R) -> np.ndarray:
 
 
 def axis_angle(axis, angle) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) by ``angle`` (...) rad about ``axis`` (..., 3), which is normalised."""
+    """Rotation matrices (..., 3, 3) by ``angle`` (...) rad about ``axis`` (..., 3).
+
+    Which is normalised.
+    """
     axis = _as_float(axis)
     norm = np.linalg.norm(axis, axis=-1, keepdims=True)
     if np.any(norm < 1e-12):
@@ -88,7 +100,10 @@ def axis_angle(axis, angle) -> np.ndarray:
 
 
 def _elementary(angle, i: int, j: int) -> np.ndarray:
-    """Rotation (..., 3, 3) by ``angle`` in the (i, j) coordinate plane (right-handed about the third axis)."""
+    """Rotation (..., 3, 3) by ``angle`` in the (i, j) coordinate plane.
+
+    Right-handed about the third axis.
+    """
     angle = _as_float(angle)
     c, s = np.cos(angle), np.sin(angle)
     out = np.zeros(angle.shape + (3, 3))

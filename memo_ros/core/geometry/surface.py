@@ -18,7 +18,10 @@ from memo_ros.core.geometry.body import PART_NAMES, Body, PartShape
 
 @dataclass
 class SurfaceNodes:
-    """All parts' nodes: owning part index, part-frame points and unit outward normals, neighbour indices."""
+    """All parts' nodes.
+
+    Owning part index, part-frame points and unit outward normals, neighbour indices.
+    """
 
     part: np.ndarray  # (M,) int part index
     points: np.ndarray  # (M, 3) part frame
@@ -87,7 +90,10 @@ def body_surface(
 
 
 def normal_variation(nodes: SurfaceNodes) -> np.ndarray:
-    """Per-part variation of the normal, eps_i = mean over nodes of min_k n_m . n_k (Kakadiaris eq. 12)."""
+    """Per-part variation of the normal, eps_i = mean over nodes of min_k n_m . n_k.
+
+    Kakadiaris eq. 12.
+    """
     eps_node = np.einsum('mj,mkj->mk', nodes.normals, nodes.normals[nodes.neighbours]).min(
         axis=1
     )  # eq. 12

@@ -1,1 +1,4 @@
-"""Kakadiaris & Metaxas: motion model, EKF, Jacobian, model nodes, force assignment, selection, tracker."""
+"""Kakadiaris & Metaxas.
+
+Motion model, EKF, Jacobian, model nodes, force assignment, selection, tracker.
+"""

@@ -1,4 +1,6 @@
-"""What the body's shape cannot tell but its anatomy can: joint ranges, facing, and the mirror twin.
+"""What the body's shape cannot tell but its anatomy can.
+
+Joint ranges, facing, and the mirror twin.
 
 The 14 elliptic cylinders are front/back symmetric except the feet, so a body
 turned by 180 degrees about the vertical, with its left and right limbs
@@ -40,7 +42,10 @@ ELBOW_REFLEX = 0.2  # rad; below it a slightly negative elbow is only clamped to
 
 
 class Anatomy:
-    """Index tables of one body's coordinates: ranges, hinge angles to wrap, the twin's permutation."""
+    """Index tables of one body's coordinates.
+
+    Ranges, hinge angles to wrap, the twin's permutation.
+    """
 
     def __init__(self, body: Body) -> None:
         names = body.coordinate_names
@@ -134,10 +139,12 @@ class Anatomy:
         return out
 
     def tangent_map(self) -> np.ndarray:
-        """Return the twin's map of tangent vectors (rates, covariances): M with v_twin = M v, (n, n).
+        """Return the twin's map of tangent vectors (rates, covariances).
 
-        Joints as :meth:`twin`; the root's body-frame rates turn with it
-        (about x and y they change sign), its translation rates stay.
+        M with v_twin = M v, (n, n).
+
+        Joints as :meth:`twin`; the root's body-frame rates turn with it (about x and y they change
+        sign), its translation rates stay.
         """
         M = np.zeros((self.n, self.n))
         M[np.arange(self.n), self.twin_source] = self.twin_sign

@@ -40,7 +40,10 @@ class HullMeasure:
 
 
 def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Return the person mask (bool (height, width)) enclosed by a contour table's closed outlines (one per id)."""
+    """Return the person mask (bool (height, width)) enclosed by a contour table's closed outlines.
+
+    One per id.
+    """
     mask = np.zeros((height, width), np.uint8)
     if not len(table):
         return mask.view(bool)
@@ -58,7 +61,10 @@ def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.n
 
 
 def ray_meeting_point(cameras: list[Camera], masks: list[np.ndarray]) -> np.ndarray | None:
-    """Least-squares meeting point of the rays through each silhouette's centroid (None with < 2 cameras)."""
+    """Least-squares meeting point of the rays through each silhouette's centroid.
+
+    None with < 2 cameras.
+    """
     A, b = np.zeros((3, 3)), np.zeros(3)
     used = 0
     for camera, mask in zip(cameras, masks):
@@ -83,10 +89,12 @@ def visual_hull(
     tolerance_px: int = 1,
     coarse: float = 0.06,
 ) -> HullMeasure | None:
-    """Return the person's visual hull around ``centre`` (x, y), or None when nothing survives the carving.
+    """Return the person's visual hull around ``centre`` (x, y).
 
-    Carved first with ``coarse`` voxels over the whole search box, then with ``voxel``-sized ones in the
-    box of the coarse hull's largest piece (grown by two coarse voxels).
+    Or None when nothing survives the carving.
+
+    Carved first with ``coarse`` voxels over the whole search box, then with ``voxel``-sized ones
+    in the box of the coarse hull's largest piece (grown by two coarse voxels).
     """
     low = np.array([centre[0] - half_width, centre[1] - half_width, z_range[0]])
     high = np.array([centre[0] + half_width, centre[1] + half_width, z_range[1]])
@@ -147,11 +155,14 @@ Silhouettes = tuple[
 def measure_height(
     frames: list[Silhouettes], voxel: float = 0.02, ground: float = 0.0
 ) -> tuple[float, list[HullMeasure]]:
-    """Return the subject's standing height from several frames' silhouettes, and the frames' hulls.
+    """Return the subject's standing height from several frames' silhouettes.
 
-    A frame's height is the hull's top over the ground (z = ``ground``, the world's floor; the hull of the
-    feet reaches below it along the cameras' rays); the subject's is the median of the frames' heights
-    above their median, i.e. of the frames where he stands tallest (crouching does not pull it down).
+    And the frames' hulls.
+
+    A frame's height is the hull's top over the ground (z = ``ground``, the world's floor; the hull
+    of the feet reaches below it along the cameras' rays); the subject's is the median of the
+    frames' heights above their median, i.e. of the frames where he stands tallest (crouching does
+    not pull it down).
     """
     hulls = []
     for cameras, masks in frames:
@@ -170,7 +181,10 @@ def measure_height(
 
 
 def scaled_body(template: Body, height: float, name: str | None = None) -> Body:
-    """Return the template body scaled to ``height`` (standing height, m): every length, semi-axis and joint offset."""
+    """Return the template body scaled to ``height`` (standing height, m).
+
+    Every length, semi-axis and joint offset.
+    """
     if not np.isfinite(height) or height <= 0:
         raise ValueError(f'a body height must be positive, got {height}')
     factor = height / template.standing_height()
@@ -187,6 +201,9 @@ def scaled_body(template: Body, height: float, name: str | None = None) -> Body:
 def estimate_body(
     frames: list[Silhouettes], template: Body, voxel: float = 0.02, ground: float = 0.0
 ) -> tuple[Body, float]:
-    """Return the template scaled to the height measured from the frames' silhouettes; and that height, m."""
+    """Return the template scaled to the height measured from the frames' silhouettes.
+
+    And that height, m.
+    """
     height, _ = measure_height(frames, voxel, ground)
     return scaled_body(template, height), height

@@ -53,16 +53,22 @@ class ContourRays:
 
     @property
     def tree(self) -> cKDTree:
-        """KD-tree of the samples' pixels (built once per frame, for the candidates' nearest samples)."""
+        """KD-tree of the samples' pixels.
+
+        Built once per frame, for the candidates' nearest samples.
+        """
         if self._tree is None:
             self._tree = cKDTree(self.uv)
         return self._tree
 
     def within(self, uv: np.ndarray, radius: float) -> np.ndarray:
-        """(C,) True where some sample lies closer than ``radius`` px to each finite point ``uv`` (C, 2).
+        """(C,) True where some sample lies closer than ``radius`` px to each finite point ``uv``.
 
-        A grid of cells whose diagonal is under ``radius`` settles every point sharing a cell with a sample;
-        only the others are looked up in the KD-tree (the same answer, without a query per point).
+        C, 2.
+
+        A grid of cells whose diagonal is under ``radius`` settles every point sharing a cell with
+        a sample; only the others are looked up in the KD-tree (the same answer, without a query
+        per point).
         """
         out = np.zeros(len(uv), bool)
         if not len(self.uv) or not len(uv):
@@ -86,11 +92,12 @@ class ContourRays:
 def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
     """(N,) px along the outward normal that undo the contour's Gaussian smoothing to first order.
 
-    Low-passing a closed curve along its arc with a Gaussian of ``smoothing`` px moves each point towards its
-    centre of curvature by about smoothing^2 kappa / 2 (a circle of radius rho shrinks by rho (1 - exp(-s^2 /
-    2 rho^2))): convex tips (a hand's end) retract, concave corners (where a part meets a wider one) fill in.
-    kappa is the signed curvature of the smoothed contour, from its neighbouring tangents; the shift is
-    capped at half the smoothing, where the first-order model no longer holds.
+    Low-passing a closed curve along its arc with a Gaussian of ``smoothing`` px moves each point
+    towards its centre of curvature by about smoothing^2 kappa / 2 (a circle of radius rho shrinks
+    by rho (1 - exp(-s^2 / 2 rho^2))): convex tips (a hand's end) retract, concave corners (where a
+    part meets a wider one) fill in. kappa is the signed curvature of the smoothed contour, from
+    its neighbouring tangents; the shift is capped at half the smoothing, where the first-order
+    model no longer holds.
     """
     n = len(table)
     if smoothing <= 0 or n < 3:
@@ -117,9 +124,11 @@ def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
 def contour_rays(
     camera: Camera, table: np.ndarray, smoothing: float = 0.0, shift: bool = False
 ) -> ContourRays:
-    """k_z for every contour sample (Step 1), oriented to point out of the silhouette like the surface normal;
-    ``bias`` holds :func:`smoothing_shift` for the contour's Gaussian ``smoothing`` (px), by which the samples
-    are moved back when ``shift``.
+    """k_z for every contour sample (Step 1).
+
+    Oriented to point out of the silhouette like the surface normal; ``bias`` holds
+    :func:`smoothing_shift` for the contour's Gaussian ``smoothing`` (px), by which the samples are
+    moved back when ``shift``.
     """
     x = np.asarray(table['x'], float)
     y = np.asarray(table['y'], float)
@@ -168,7 +177,10 @@ class Candidates:
         return len(self.part)
 
     def subset(self, keep: np.ndarray) -> 'Candidates':
-        """Return the candidates selected by a mask or index array (these candidates themselves when a mask keeps all)."""
+        """Return the candidates selected by a mask or index array.
+
+        These candidates themselves when a mask keeps all.
+        """
         if keep.dtype == bool and len(keep) == len(self) and keep.all():
             return self
         return Candidates(
@@ -190,9 +202,11 @@ def outline_candidates(
     origins: np.ndarray,
     keys: np.ndarray | None = None,
 ) -> Candidates:
-    """Every node that can be on an outline by its own shape: the generator points of each side ring and the
-    rim nodes whose normal fan can face across the ray (no test against the other parts); only the nodes
-    named by ``keys`` (see :attr:`Candidates.key`) when given.
+    """Every node that can be on an outline by its own shape.
+
+    The generator points of each side ring and the rim nodes whose normal fan can face across the
+    ray (no test against the other parts); only the nodes named by ``keys`` (see
+    :attr:`Candidates.key`) when given.
     """
     return rig_outline_candidates(
         [camera], nodes, rotations, origins, None if keys is None else [keys]
@@ -206,8 +220,10 @@ def rig_outline_candidates(
     origins: np.ndarray,
     keys: list[np.ndarray] | None = None,
 ) -> list[Candidates]:
-    """:func:`outline_candidates` of every camera (``keys`` per camera when given), computed in one batch: the
-    nodes of all cameras go through the same array operations, side nodes before rim nodes within a camera.
+    """:func:`outline_candidates` of every camera (``keys`` per camera when given).
+
+    Computed in one batch: the nodes of all cameras go through the same array operations, side
+    nodes before rim nodes within a camera.
     """
     n_cams, n_keys = len(cameras), 2 * len(nodes)
     centres = np.array([np.asarray(c.t_world_cam, float) for c in cameras])
@@ -287,8 +303,9 @@ def rig_outline_candidates(
 
 
 def _rotate(r: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R @ v for stacks of 3x3 matrices r (..., 3, 3) and vectors v (..., 3), written out (cheaper than a
-    batched product of so small matrices).
+    """R @ v for stacks of 3x3 matrices r (..., 3, 3) and vectors v (..., 3), written out.
+
+    Cheaper than a batched product of so small matrices.
     """
     return r[..., 0] * v[..., 0, None] + r[..., 1] * v[..., 1, None] + r[..., 2] * v[..., 2, None]
 
@@ -306,8 +323,10 @@ def _norm(a: np.ndarray) -> np.ndarray:
 def _outline_normals(
     view: np.ndarray, side: np.ndarray, cap: np.ndarray, rim: np.ndarray
 ) -> np.ndarray:
-    """Return unit normal of the outline at each node, perpendicular to the viewing ray: the generator normal for
-    side nodes, and for rim nodes the direction of their fan (side to cap) that is perpendicular to the ray.
+    """Return unit normal of the outline at each node, perpendicular to the viewing ray.
+
+    The generator normal for side nodes, and for rim nodes the direction of their fan (side to cap)
+    that is perpendicular to the ray.
     """
     v = view / _norm(view)[:, None]
     s_dot, c_dot = _dot(side, v), _dot(cap, v)
@@ -329,12 +348,15 @@ def ray_part_hits(
     semi_axes: np.ndarray,
     lengths: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every hit of the unit rays ``directions`` (R, 3), each from the centre of ``cameras[ray_camera]``, on the
-    parts' capped elliptic cylinders, as (ray, part, distance) arrays.
+    """Every hit of the unit rays ``directions`` (R, 3).
 
-    A ray is tested exactly only against the parts whose bounding box it meets in its camera's normalised image
-    plane: a box wholly in front of the camera projects inside the bounds of its projected corners, so a ray
-    outside them cannot hit the part (most rays pass far from most parts).
+    Each from the centre of ``cameras[ray_camera]``, on the parts' capped elliptic cylinders, as
+    (ray, part, distance) arrays.
+
+    A ray is tested exactly only against the parts whose bounding box it meets in its camera's
+    normalised image plane: a box wholly in front of the camera projects inside the bounds of its
+    projected corners, so a ray outside them cannot hit the part (most rays pass far from most
+    parts).
     """
     n_parts = len(lengths)
     centres = np.array([np.asarray(c.t_world_cam, float) for c in cameras])  # (K, 3)
@@ -408,8 +430,10 @@ def on_outline(
     lengths: np.ndarray,
     probe_px: float = OUTLINE_PROBE_PX,
 ) -> np.ndarray:
-    """(C,) True where a candidate is on the predicted body's occluding contour: nothing hides it, and the ray
-    ``probe_px`` outside it across the outline meets no part (it is not inside another part's silhouette).
+    """(C,) True where a candidate is on the predicted body's occluding contour.
+
+    Nothing hides it, and the ray ``probe_px`` outside it across the outline meets no part (it is
+    not inside another part's silhouette).
     """
     return rig_on_outline([camera], [cand], rotations, origins, semi_axes, lengths, probe_px)[0]
 
@@ -462,8 +486,10 @@ def rig_on_outline(
 def _generator(
     nodes: ModelNodes, centre_local: np.ndarray, idx: np.ndarray, sign: np.ndarray
 ) -> np.ndarray:
-    """Return generator angle of the rings starting at idx, on the side ``sign`` (+1: phi + arccos, -1: phi - arccos),
-    for the camera centre in each ring's part frame; NaN when the centre is inside the cylinder.
+    """Return generator angle of the rings starting at idx.
+
+    On the side ``sign`` (+1: phi + arccos, -1: phi - arccos), for the camera centre in each ring's
+    part frame; NaN when the centre is inside the cylinder.
     """
     ux, uy = centre_local[:, 0] / nodes.a[idx], centre_local[:, 1] / nodes.b[idx]
     rho = np.hypot(ux, uy)
@@ -484,7 +510,10 @@ class Matches:
 def _alignment(
     rays: ContourRays, candidates: Candidates, sample: np.ndarray, node: np.ndarray
 ) -> np.ndarray:
-    """N . k_z of each (sample, node) pair, over the rim's normal fan for rim nodes (eq. 13's left side)."""
+    """N . k_z of each (sample, node) pair, over the rim's normal fan for rim nodes.
+
+    Eq. 13's left side.
+    """
     kz = rays.k[sample]
     align = _dot(candidates.normal[node], kz)
     rim = np.flatnonzero(candidates.rim[node])

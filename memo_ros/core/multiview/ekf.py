@@ -1,13 +1,13 @@
-"""Extended Kalman filter over the articulated body (Kakadiaris & Metaxas §3, eq. 10-11), information form.
+"""Extended Kalman filter over the articulated body (Kakadiaris & Metaxas §3, eq. 10-11).
 
-State: the generalized coordinates q and their tangent rates v (motion.py), with
-an error-state covariance P (2n x 2n).  The update is an iterated EKF written in
-information form: each iteration sums H^T W H and H^T W r over the measurements
-(cost linear in their number, n^2 each) and solves one 2n x 2n system, so
-thousands of contour samples cost no more than a few hundred.  Measurements are
-gated by their Mahalanobis distance against the predicted covariance, and the
-normalised innovation squared (NIS) of the accepted ones tells whether the
-filter is consistent.
+Information form.
+
+State: the generalized coordinates q and their tangent rates v (motion.py), with an error-state
+covariance P (2n x 2n).  The update is an iterated EKF written in information form: each iteration
+sums H^T W H and H^T W r over the measurements (cost linear in their number, n^2 each) and solves
+one 2n x 2n system, so thousands of contour samples cost no more than a few hundred.  Measurements
+are gated by their Mahalanobis distance against the predicted covariance, and the normalised
+innovation squared (NIS) of the accepted ones tells whether the filter is consistent.
 """
 
 from __future__ import annotations
@@ -22,7 +22,10 @@ from memo_ros.core.multiview.motion import ConstantVelocity, retract
 
 @dataclass
 class Measurements:
-    """Scalar measurements linearised at a pose: Jacobian rows H (m, n) over positions, residuals r, sigmas."""
+    """Scalar measurements linearised at a pose.
+
+    Jacobian rows H (m, n) over positions, residuals r, sigmas.
+    """
 
     H: np.ndarray
     r: np.ndarray
@@ -81,7 +84,10 @@ class ArticulatedEKF:
         gate: float = 4.0,
         tolerance: float = 1e-5,
     ) -> UpdateReport:
-        """Run the iterated update (eq. 11): relinearise ``measure`` at each iterate, gate, solve in information form."""
+        """Run the iterated update (eq. 11).
+
+        Relinearise ``measure`` at each iterate, gate, solve in information form.
+        """
         n = self.n
         q0, v0, P0 = self.q, self.v, self.P
         info0 = np.linalg.inv(P0)

@@ -1,11 +1,12 @@
-"""The Jacobian L of body points with respect to the coordinates' local increments (Kakadiaris eq. 2, 9).
+"""The Jacobian L of body points with respect to the coordinates' local increments.
 
-A point p on part i moves with the increment delta of coordinate c by
-dp = axis_c x (p - pivot_c) delta for a rotation and axis_c delta for the root's
-translation, when c lies on i's chain.  Rotation groups (root, ball joints) are
-perturbed on the right, R <- R exp(delta) (see motion.py), so their axes are the
-child frame's columns; hinge chains ('yz', 'yx', 'y') take each elementary axis
-after the rotations before it.
+Kakadiaris eq. 2, 9.
+
+A point p on part i moves with the increment delta of coordinate c by dp = axis_c x (p - pivot_c)
+delta for a rotation and axis_c delta for the root's translation, when c lies on i's chain.
+Rotation groups (root, ball joints) are perturbed on the right, R <- R exp(delta) (see motion.py),
+so their axes are the child frame's columns; hinge chains ('yz', 'yx', 'y') take each elementary
+axis after the rotations before it.
 """
 
 from __future__ import annotations
@@ -37,12 +38,19 @@ class ChainAxes:
 
     @cached_property
     def rotation_axes(self) -> np.ndarray:
-        """(3, n): the axes of the rotation coordinates as columns, zero for translations (see projected_rows)."""
+        """(3, n).
+
+        The axes of the rotation coordinates as columns, zero for translations (see
+        projected_rows).
+        """
         return (self.axes * self.revolute[:, None]).T
 
     @cached_property
     def offset_terms(self) -> np.ndarray:
-        """(3, n): -(a x c0) for a rotation about axis a through pivot c0, the axis a for a translation."""
+        """(3, n).
+
+        -(a x c0) for a rotation about axis a through pivot c0, the axis a for a translation.
+        """
         a, c = self.axes, self.pivots
         moment = a[:, [1, 2, 0]] * c[:, [2, 0, 1]] - a[:, [2, 0, 1]] * c[:, [1, 2, 0]]
         return np.where(self.revolute[:, None], -moment, a).T
@@ -70,7 +78,10 @@ def chain_axes(
     origins: np.ndarray,
     affects: np.ndarray | None = None,
 ) -> ChainAxes:
-    """Axes and pivots of every coordinate at pose q (rotations/origins from forward kinematics of q)."""
+    """Axes and pivots of every coordinate at pose q.
+
+    Rotations/origins from forward kinematics of q.
+    """
     n = body.n_coordinates
     axes = np.zeros((n, 3))
     pivots = np.zeros((n, 3))
@@ -110,8 +121,10 @@ def point_jacobian(chain: ChainAxes, parts: np.ndarray, points: np.ndarray) -> n
 def normal_jacobian(
     chain: ChainAxes, parts: np.ndarray, normals: np.ndarray, part_axes: np.ndarray
 ) -> np.ndarray:
-    """dn/d(delta) (N, 3, n) of contour-generator normals: rotations move them, except a twist about
-    the part's own axis, which leaves the generator's normal in place (eq. 15's L).
+    """dn/d(delta) (N, 3, n) of contour-generator normals.
+
+    Rotations move them, except a twist about the part's own axis, which leaves the generator's
+    normal in place (eq. 15's L).
     """
     w = chain.axes[None] * chain.revolute[None, :, None]  # (1, n, 3)
     along = part_axes[:, None, :]  # (N, 1, 3)
@@ -123,11 +136,13 @@ def normal_jacobian(
 def projected_rows(
     chain: ChainAxes, parts: np.ndarray, points: np.ndarray, g: np.ndarray
 ) -> np.ndarray:
-    """G . L (N, n) for world points and row vectors g (N, 3), without forming L (eq. 9 contracted).
+    """G .
 
-    For a rotation c about axis a through pivot c0, g . (a x (p - c0)) = a . (p x g) - g . (a x c0), so all
-    columns come from two (N, 3) @ (3, n) products; a translation column is g . a.  Equal to
-    ``einsum('ni,nij->nj', g, point_jacobian(chain, parts, points))``.
+    L (N, n) for world points and row vectors g (N, 3), without forming L (eq. 9 contracted).
+
+    For a rotation c about axis a through pivot c0, g . (a x (p - c0)) = a . (p x g) - g . (a x
+    c0), so all columns come from two (N, 3) @ (3, n) products; a translation column is g . a.
+    Equal to ``einsum('ni,nij->nj', g, point_jacobian(chain, parts, points))``.
     """
     p_cross_g = points[:, [1, 2, 0]] * g[:, [2, 0, 1]] - points[:, [2, 0, 1]] * g[:, [1, 2, 0]]
     rows = p_cross_g @ chain.rotation_axes + g @ chain.offset_terms

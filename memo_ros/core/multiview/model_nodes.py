@@ -23,7 +23,10 @@ from memo_ros.core.geometry.surface import body_surface, normal_variation
 
 @dataclass
 class ModelNodes:
-    """Nodes of all parts in part frames: ring angle, height, rim flag, with per-part eq. 12 thresholds."""
+    """Nodes of all parts in part frames.
+
+    Ring angle, height, rim flag, with per-part eq. 12 thresholds.
+    """
 
     part: np.ndarray  # (M,) part index
     theta: np.ndarray  # (M,) angle around the ellipse, rad
@@ -55,7 +58,10 @@ class ModelNodes:
 
     @cached_property
     def side_index(self) -> np.ndarray:
-        """Ring starts twice: the side candidates' rings, first on the +arccos generator, then on the -arccos one."""
+        """Ring starts twice.
+
+        The side candidates' rings, first on the +arccos generator, then on the -arccos one.
+        """
         return np.concatenate([self.ring_starts, self.ring_starts])
 
     @cached_property
@@ -108,7 +114,10 @@ def model_nodes(body: Body, n_around: int = 24, ring_spacing: float = 0.03) -> M
 
 
 def fan_alignment(side_n: np.ndarray, cap_n: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Max over the rim's normal fan (side to cap, a quarter turn) of n . k (M,): eq. 13 for rim nodes."""
+    """Max over the rim's normal fan (side to cap, a quarter turn) of n . k (M,).
+
+    Eq. 13 for rim nodes.
+    """
     s = side_n[:, 0] * k[:, 0] + side_n[:, 1] * k[:, 1] + side_n[:, 2] * k[:, 2]
     c = cap_n[:, 0] * k[:, 0] + cap_n[:, 1] * k[:, 1] + cap_n[:, 2] * k[:, 2]
     inside = (s > 0) & (c > 0)

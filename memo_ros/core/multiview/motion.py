@@ -1,14 +1,15 @@
-"""The motion model shared by the selector and the tracker: constant velocity per degree of freedom.
+"""The motion model shared by the selector and the tracker.
 
-The filter's state is the generalized coordinates ``q`` (DESIGN.md names) and
-their velocities.  Rotations kept as rotation vectors (the floating base and the
-ball joints) are moved by local increments, ``R <- R exp(delta)``, so nothing
-gimbal-locks and the error state is additive (Kakadiaris & Metaxas use
-quaternions for the same reason).  Velocities inside the filter are tangent
-rates (body angular velocity for those groups); ``/memo/joint_states`` carries
-the coordinates' own time derivatives, and :func:`coordinate_rates` /
-:func:`tangent_rates` convert exactly between the two, so the selector predicts
-frame t from the published posterior exactly as the tracker does.
+Constant velocity per degree of freedom.
+
+The filter's state is the generalized coordinates ``q`` (DESIGN.md names) and their velocities.
+Rotations kept as rotation vectors (the floating base and the ball joints) are moved by local
+increments, ``R <- R exp(delta)``, so nothing gimbal-locks and the error state is additive
+(Kakadiaris & Metaxas use quaternions for the same reason).  Velocities inside the filter are
+tangent rates (body angular velocity for those groups); ``/memo/joint_states`` carries the
+coordinates' own time derivatives, and :func:`coordinate_rates` / :func:`tangent_rates` convert
+exactly between the two, so the selector predicts frame t from the published posterior exactly as
+the tracker does.
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ EXTRA_STATE_NAMES = ('gait_phase',)  # JointState entries that are not body coor
 
 
 def rotation_groups(body: Body) -> np.ndarray:
-    """Return indices (G, 3) of the rotation-vector triples in ``q``: the root's and every ball joint's."""
+    """Return indices (G, 3) of the rotation-vector triples in ``q``.
+
+    The root's and every ball joint's.
+    """
     starts = [body.coordinate_index('root_rx')]
     starts += [body.coordinate_index(f'{j.name}_x') for j in body.joints if j.axes == 'ball']
     return np.array(starts, int)[:, None] + np.arange(3)
@@ -47,10 +51,13 @@ def right_jacobian(r: np.ndarray) -> np.ndarray:
 
 
 def retract(q: np.ndarray, delta: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """Q (+) delta: additive for scalar coordinates, R(r) exp(delta) for rotation groups; batched over rows.
+    """Q (+) delta.
 
-    The rotations are composed as unit quaternions (the same rotation as the matrix product, without
-    converting matrices back to rotation vectors, the slow part at the tracker's few groups).
+    Additive for scalar coordinates, R(r) exp(delta) for rotation groups; batched over rows.
+
+    The rotations are composed as unit quaternions (the same rotation as the matrix product,
+    without converting matrices back to rotation vectors, the slow part at the tracker's few
+    groups).
     """
     q, delta = np.asarray(q, float), np.asarray(delta, float)
     out = q + delta
@@ -102,7 +109,10 @@ class ProcessNoise:
 
 
 class ConstantVelocity:
-    """Constant velocity per degree of freedom with white-noise acceleration (the tracker's and selector's model)."""
+    """Constant velocity per degree of freedom with white-noise acceleration.
+
+    The tracker's and selector's model.
+    """
 
     def __init__(self, body: Body, noise: ProcessNoise | None = None) -> None:
         self.body = body
@@ -118,7 +128,10 @@ class ConstantVelocity:
     def predict_coordinates(
         self, q: np.ndarray, qdot: np.ndarray, dt: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Prediction from published coordinates and their time derivatives (what the selector receives)."""
+        """Prediction from published coordinates and their time derivatives.
+
+        What the selector receives.
+        """
         v = tangent_rates(q, qdot, self.groups)
         q_next, v_next = self.predict(q, v, dt)
         return q_next, coordinate_rates(q_next, v_next, self.groups)
@@ -155,7 +168,10 @@ def named_values_problem(names: Sequence[str], values: Sequence[float] | np.ndar
 def coordinates_from_names(
     body: Body, names, values, default: np.ndarray | None = None
 ) -> np.ndarray:
-    """Return a coordinate vector from (name, value) pairs, unnamed ones from ``default`` (neutral); unknown names raise KeyError."""
+    """Return a coordinate vector from (name, value) pairs.
+
+    Unnamed ones from ``default`` (neutral); unknown names raise KeyError.
+    """
     q = np.array(default if default is not None else body.neutral(), float)
     index = {n: i for i, n in enumerate(body.coordinate_names)}
     for name, value in zip(names, values):

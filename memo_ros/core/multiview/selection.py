@@ -1,7 +1,9 @@
-"""Active viewpoint selection (Kakadiaris & Metaxas §4): which cameras may update which part at frame t.
+"""Active viewpoint selection (Kakadiaris & Metaxas §4).
 
-Per part i and camera k, from the pose predicted for frame t (and the posterior
-of t-1 for the motion):
+Which cameras may update which part at frame t.
+
+Per part i and camera k, from the pose predicted for frame t (and the posterior of t-1 for the
+motion):
 
 - the visibility index VI(i, k) = visible projected area / projected area with
   occlusions ignored, counted on the renderer's label image at a reduced
@@ -13,10 +15,9 @@ of t-1 for the motion):
   observability (ties by VI), at most ``max_cameras_per_part`` (0: all); a part that no
   camera sees is unobserved, so the tracker only predicts it.
 
-The occluding-contour nodes of an elliptic cylinder are its two contour
-generators (side lines whose normal is perpendicular to the viewing ray,
-sampled along the axis) and the rim nodes of its end caps that lie on the
-silhouette (one of the two faces meeting there is seen, the other not).
+The occluding-contour nodes of an elliptic cylinder are its two contour generators (side lines
+whose normal is perpendicular to the viewing ray, sampled along the axis) and the rim nodes of its
+end caps that lie on the silhouette (one of the two faces meeting there is seen, the other not).
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ class SelectionSettings:
             or int(self.max_cameras_per_part) != self.max_cameras_per_part
         ):
             problems.append(
-                f'max_cameras_per_part={self.max_cameras_per_part} is not an integer in [0, {MAX_CAMERAS}]'
+                f'max_cameras_per_part={self.max_cameras_per_part} is not an integer in [0, '
+                f'{MAX_CAMERAS}]'
             )
         if not 0.05 <= self.render_scale <= 1.0:
             problems.append(f'render_scale={self.render_scale} is outside [0.05, 1]')
@@ -83,7 +85,10 @@ class SelectionSettings:
 # ------------------------------------------------------------------ result
 @dataclass
 class Assignment:
-    """Per part (rows, PART_NAMES order) and camera (columns): VI, observability, selection; one frame."""
+    """Per part (rows, PART_NAMES order) and camera (columns).
+
+    VI, observability, selection; one frame.
+    """
 
     cameras: list[str]
     vi: np.ndarray  # (P, K) visibility index, NaN when not computed (dead camera, no posterior)
@@ -140,7 +145,10 @@ class Assignment:
 
 
 def rank_selected(selected: np.ndarray, observability: np.ndarray, vi: np.ndarray) -> np.ndarray:
-    """Rank (P, K) of the selected cameras per part: observability descending, then VI, then camera order."""
+    """Rank (P, K) of the selected cameras per part.
+
+    Observability descending, then VI, then camera order.
+    """
     obs = np.where(np.isfinite(observability), observability, -np.inf)
     vis = np.where(np.isfinite(vi), vi, -np.inf)
     k = selected.shape[1]
@@ -154,7 +162,10 @@ def rank_selected(selected: np.ndarray, observability: np.ndarray, vi: np.ndarra
 
 # ------------------------------------------------------------ the science
 def visibility_index(rendering: Rendering, n_parts: int = len(PART_NAMES)) -> np.ndarray:
-    """VI per part (P,): visible / unoccluded projected area (§4), 0 where the part is not in the image."""
+    """VI per part (P,).
+
+    Visible / unoccluded projected area (§4), 0 where the part is not in the image.
+    """
     visible = rendering.visible_area(n_parts).astype(float)
     total = np.asarray(rendering.unoccluded_area[:n_parts], float)
     return np.divide(visible, total, out=np.zeros(n_parts), where=total > 0)
@@ -162,7 +173,10 @@ def visibility_index(rendering: Rendering, n_parts: int = len(PART_NAMES)) -> np
 
 @dataclass
 class ContourModel:
-    """Part-frame samples from which each camera's occluding-contour nodes are picked (built once per body)."""
+    """Part-frame samples from which each camera's occluding-contour nodes are picked.
+
+    Built once per body.
+    """
 
     semi_axes: np.ndarray  # (P, 2)
     lengths: np.ndarray  # (P,)
@@ -204,7 +218,9 @@ class ContourModel:
         )
 
     def contour_nodes(self, centre_local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Occluding-contour nodes for a camera centre in every part's frame (P, 3): parts, points (C, 3), cap (C,).
+        """Occluding-contour nodes for a camera centre in every part's frame (P, 3).
+
+        Parts, points (C, 3), cap (C,).
 
         ``cap`` is 0 for a node on a contour generator, -1 / +1 for a proximal / distal rim node.
         """
@@ -242,13 +258,15 @@ def occluding_contour(
     rendering: Rendering,
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Return the visible occluding-contour nodes P_i of every part (§4): parts (C,) and part-frame points (C, 3).
+    """Return the visible occluding-contour nodes P_i of every part (§4).
 
-    A node lies on its part's silhouette edge, so its own pixel cannot tell
-    whether something covers it.  It is tested one label-image pixel inside
-    instead (towards the axis, and along it for a rim node): that point projects
-    inside the part's own silhouette (a convex part), so a node is visible when
-    the label there is its own part (or nothing), and hidden by any other label.
+    Parts (C,) and part-frame points (C, 3).
+
+    A node lies on its part's silhouette edge, so its own pixel cannot tell whether something
+    covers it.  It is tested one label-image pixel inside instead (towards the axis, and along it
+    for a rim node): that point projects inside the part's own silhouette (a convex part), so a
+    node is visible when the label there is its own part (or nothing), and hidden by any other
+    label.
     """
     centre_local = np.einsum('pji,pj->pi', rotations, camera.centre - origins)  # R^T (c - o)
     part, local, cap = model.contour_nodes(centre_local)
@@ -286,7 +304,10 @@ def observability(
     n_parts: int,
     norm: str = 'norm_of_sum',
 ) -> np.ndarray:
-    """Per part (P,): image motion of its contour nodes from t-1 to t, || sum_j dx_j || (§4) or sum_j ||dx_j||."""
+    """Per part (P,).
+
+    Image motion of its contour nodes from t-1 to t, || sum_j dx_j || (§4) or sum_j ||dx_j||.
+    """
     (r0, o0), (r1, o1) = prev, pred
     x0 = camera.project(np.einsum('cij,cj->ci', r0[part], local) + o0[part])
     x1 = camera.project(np.einsum('cij,cj->ci', r1[part], local) + o1[part])
@@ -303,9 +324,13 @@ def observability(
 def assignment(
     vi: np.ndarray, obs: np.ndarray, alive: np.ndarray, threshold: float, max_cameras: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """§4 selection: visible (VI >= threshold, alive) cameras ranked by observability, at most ``max_cameras`` (0: all).
+    """§4 selection.
 
-    Returns selected (P, K), observed (P,) and rank (P, K); a visible part always keeps its best camera.
+    Visible (VI >= threshold, alive) cameras ranked by observability, at most ``max_cameras`` (0:
+    all).
+
+    Returns selected (P, K), observed (P,) and rank (P, K); a visible part always keeps its best
+    camera.
     """
     visible = (np.nan_to_num(vi, nan=-1.0) >= threshold) & alive[None, :]
     rank = rank_selected(visible, obs, vi)
@@ -371,17 +396,26 @@ class CameraSelector:
 
 @dataclass
 class CameraLiveness:
-    """Which cameras are alive at a frame stamp: the camera is heard of and its contour_node delivers.
+    """Which cameras are alive at a frame stamp.
 
-    - heard of: the newest camera_info or contours stamp is within the timeout of the frame (stamps, not
-      arrival times, so a bag replayed at any rate behaves alike; either stream, as one of them may lag
-      in a loaded process; the clock starts at the first frame, so a camera never heard of drops out
+    The camera is heard of and its contour_node delivers.
+
+    - heard of: the newest camera_info or contours stamp is within the timeout of the frame
+      (stamps, not
+      arrival times, so a bag replayed at any rate behaves alike; either stream, as one of them may
+      lag
+      in a loaded process; the clock starts at the first frame, so a camera never heard of drops
+      out
       once the timeout has passed);
-    - contours (``require_contours``): the contour_node is gone once its contours stopped arriving both
-      for more than the timeout of camera_info stamps and for more than ``contours_timeout_s`` of wall
+    - contours (``require_contours``): the contour_node is gone once its contours stopped arriving
+      both
+      for more than the timeout of camera_info stamps and for more than ``contours_timeout_s`` of
+      wall
       time.  A contour_node that lags behind the cameras, or is starved of CPU for a moment, still
-      delivers, so it is not taken for dead; without ``require_contours`` being heard of is enough (the
+      delivers, so it is not taken for dead; without ``require_contours`` being heard of is enough
+      (the
       selector run without contour nodes).
+
     """
 
     cameras: list[str]
@@ -416,7 +450,10 @@ class CameraLiveness:
             )
 
     def alive(self, frame_ns: int, wall: float | None = None) -> dict[str, bool]:
-        """Camera -> alive at frame ``frame_ns`` (judged at monotonic ``wall`` time, now by default)."""
+        """Camera -> alive at frame ``frame_ns``.
+
+        Judged at monotonic ``wall`` time, now by default.
+        """
         wall = time.monotonic() if wall is None else wall
         if self.first_frame_ns is None:
             self.first_frame_ns, self.first_wall = frame_ns, wall

@@ -1,14 +1,15 @@
-"""The articulated multi-camera tracker (Kakadiaris & Metaxas §2-4): one frame in, one posterior out.
+"""The articulated multi-camera tracker (Kakadiaris & Metaxas §2-4).
 
-Per frame: predict with the shared motion model; per camera, Step 1 of the force
-assignment on its contour samples; then an iterated EKF update whose
-measurements, relinearised at every iterate, are each matched sample's image
-force along the contour normal (eq. 14: the component across the contour, the
-one a contour can measure) and the normal force k_z - n (eq. 15) of side nodes,
-both through the Jacobian L (eq. 9, 16).  A sample only acts on a part whose
-camera the selector chose for it.  No contour anywhere, or an inconsistent
-filter for several frames, means tracking is lost: it is reported and the pose
-re-initialised from the silhouettes, never published as if it were tracked.
+One frame in, one posterior out.
+
+Per frame: predict with the shared motion model; per camera, Step 1 of the force assignment on its
+contour samples; then an iterated EKF update whose measurements, relinearised at every iterate, are
+each matched sample's image force along the contour normal (eq. 14: the component across the
+contour, the one a contour can measure) and the normal force k_z - n (eq. 15) of side nodes, both
+through the Jacobian L (eq. 9, 16).  A sample only acts on a part whose camera the selector chose
+for it.  No contour anywhere, or an inconsistent filter for several frames, means tracking is lost:
+it is reported and the pose re-initialised from the silhouettes, never published as if it were
+tracked.
 """
 
 from __future__ import annotations
@@ -149,8 +150,10 @@ class ArticulatedTracker:
 
     # ------------------------------------------------------------ state
     def reset(self, use_initial_pose: bool = True) -> None:
-        """Forget the track: the next frame with contours initialises again, from the studio's initial
-        pose (a user reset, a bag loop) or, after a lost track, from the silhouettes.
+        """Forget the track.
+
+        The next frame with contours initialises again, from the studio's initial pose (a user
+        reset, a bag loop) or, after a lost track, from the silhouettes.
         """
         self.status = WAITING
         self.stamp_ns: int | None = None
@@ -192,7 +195,10 @@ class ArticulatedTracker:
         contours: dict[str, np.ndarray],
         selected: dict[str, np.ndarray] | None = None,
     ) -> FrameResult:
-        """Track one frame: contour tables per camera; ``selected`` maps a camera to its (P,) part mask."""
+        """Track one frame.
+
+        Contour tables per camera; ``selected`` maps a camera to its (P,) part mask.
+        """
         start = time.perf_counter()
         contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
         samples = sum(len(t) for t in contours.values())
@@ -311,15 +317,20 @@ class ArticulatedTracker:
     # ------------------------------------------------------------ the twin hypothesis
     @property
     def heading_confidence(self) -> float:
-        """Return how sure the track is not its 180-degree, side-swapped twin (logistic of the evidence)."""
+        """Return how sure the track is not its 180-degree, side-swapped twin.
+
+        Logistic of the evidence.
+        """
         if self.settings.twin_evidence <= 0:
             return 1.0
         k = np.log(99.0) / self.settings.twin_evidence  # 0.99 at the deciding evidence
         return float(1.0 / (1.0 + np.exp(-np.clip(k * self.evidence, -50.0, 50.0))))
 
     def _clamp(self, ekf: ArticulatedEKF) -> None:
-        """Project a filter's pose into the anatomical ranges (the rates and covariance stay as they are:
-        zeroing a rate at a bound without its correlations made a straight knee run away).
+        """Project a filter's pose into the anatomical ranges.
+
+        The rates and covariance stay as they are: zeroing a rate at a bound without its
+        correlations made a straight knee run away.
         """
         for arm in self.anatomy.reflexed_arms(ekf.q):  # exact: the arm does not move
             ekf.q, M = self.anatomy.unreflex(ekf.q, arm)
@@ -383,10 +394,12 @@ class ArticulatedTracker:
             self.since_twin = 0
 
     def _twin_filter(self, ekf: ArticulatedEKF, free: np.ndarray) -> ArticulatedEKF:
-        """Return a filter at the twin of ``ekf``'s state, its covariance carried over by the same map.
+        """Return a filter at the twin of ``ekf``'s state.
 
-        The twin is taken of ``free``, the pose before the ranges were
-        imposed: a hinge the leader had to straighten bends the right way in it.
+        Its covariance carried over by the same map.
+
+        The twin is taken of ``free``, the pose before the ranges were imposed: a hinge the leader
+        had to straighten bends the right way in it.
         """
         twin = ArticulatedEKF(self.model)
         M = self.anatomy.tangent_map()
@@ -401,8 +414,10 @@ class ArticulatedTracker:
     def _refit(
         self, ekf: ArticulatedEKF, q: np.ndarray, contours, rays, masks, clamp: bool = True
     ) -> UpdateReport:
-        """Fit a start pose to one frame from a broad prior: ``init_iterations`` relinearisations in
-        rounds of five, each round ending in the anatomical ranges (hard limits) and starting anew.
+        """Fit a start pose to one frame from a broad prior.
+
+        ``init_iterations`` relinearisations in rounds of five, each round ending in the anatomical
+        ranges (hard limits) and starting anew.
         """
         s = self.settings
         sigma_q = np.where(np.arange(len(q)) < 3, 0.3, 0.5)
@@ -421,8 +436,10 @@ class ArticulatedTracker:
         return report
 
     def _fit_cost(self, q: np.ndarray, contours, rays, masks, samples: int) -> float:
-        """Robust misfit of pose ``q`` to the contours: sum of min(z^2, gate^2) over the samples, where z
-        is a matched sample's normalised force and an unmatched sample counts the full gate^2.
+        """Robust misfit of pose ``q`` to the contours.
+
+        Sum of min(z^2, gate^2) over the samples, where z is a matched sample's normalised force
+        and an unmatched sample counts the full gate^2.
         """
         m = self._measurement_function(contours, rays, masks)(q)
         matched = self._last_counts[0]
@@ -439,9 +456,11 @@ class ArticulatedTracker:
         origins: np.ndarray,
         frame: dict,
     ) -> list[Candidates]:
-        """Per camera, the nodes that may be on an outline near its samples.  Which nodes, and which are on the
-        predicted outline (:class:`FirstOutline`, kept in ``frame``), is decided once per frame (at the first
-        linearisation, like a per-frame visibility test) and kept through the iterations.
+        """Per camera, the nodes that may be on an outline near its samples.
+
+        Which nodes, and which are on the predicted outline (:class:`FirstOutline`, kept in
+        ``frame``), is decided once per frame (at the first linearisation, like a per-frame
+        visibility test) and kept through the iterations.
         """
         if not frame:
             out = []
@@ -462,7 +481,10 @@ class ArticulatedTracker:
         return [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in cands]
 
     def _limit_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Joint limits as pseudo-measurements (soft inequality constraints), active where q leaves its range."""
+        """Joint limits as pseudo-measurements (soft inequality constraints).
+
+        Active where q leaves its range.
+        """
         if self.settings.limit_sigma <= 0:
             return None
         v = q[self.limit_index]
@@ -475,7 +497,10 @@ class ArticulatedTracker:
         return H, target[active] - v[active], np.full(len(H), self.settings.limit_sigma)
 
     def _measurement_function(self, contours, rays, masks):
-        """measure(q) -> Measurements: the forces of eq. 14-15 linearised at q (Jacobians of eq. 9, 16)."""
+        """measure(q) -> Measurements.
+
+        The forces of eq. 14-15 linearised at q (Jacobians of eq. 9, 16).
+        """
         s = self.settings
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
@@ -581,8 +606,10 @@ class ArticulatedTracker:
 
     # ------------------------------------------------------------ initialisation
     def _initialise(self, stamp_ns: int, contours, rays) -> None:
-        """Start from the given pose, or from the silhouettes: root from the rays through their centres,
-        a standing posture at the best of several headings, refined by the update itself.
+        """Start from the given pose, or from the silhouettes.
+
+        Root from the rays through their centres, a standing posture at the best of several
+        headings, refined by the update itself.
         """
         s = self.settings
         sigma_q = np.full(self.body.n_coordinates, s.init_sigma_rotation)
@@ -658,7 +685,10 @@ class FirstOutline:
         return self._order[k][np.searchsorted(self.keys[k], cand.key)]
 
     def usable(self, index: list[np.ndarray]) -> list[np.ndarray]:
-        """Per camera, True where its first-linearisation candidates ``index[k]`` are on the predicted outline."""
+        """Per camera.
+
+        True where its first-linearisation candidates ``index[k]`` are on the predicted outline.
+        """
         todo = [
             np.flatnonzero(
                 np.bincount(i[state[i] < 0], minlength=len(state))
@@ -681,7 +711,10 @@ class FirstOutline:
 
 
 def sample_spacing(table: np.ndarray) -> float:
-    """Median pixel distance between consecutive samples of the same contour (REFERENCE_SPACING_PX if unknown)."""
+    """Median pixel distance between consecutive samples of the same contour.
+
+    REFERENCE_SPACING_PX if unknown.
+    """
     if len(table) < 2:
         return REFERENCE_SPACING_PX
     same = (
@@ -695,7 +728,10 @@ def sample_spacing(table: np.ndarray) -> float:
 
 
 def triangulate_centre(cameras: list[Camera], tables: list[np.ndarray]) -> np.ndarray | None:
-    """Least-squares meeting point of the rays through each camera's contour centroid (None with < 2 cameras)."""
+    """Least-squares meeting point of the rays through each camera's contour centroid.
+
+    None with < 2 cameras.
+    """
     A, b = np.zeros((3, 3)), np.zeros(3)
     used = 0
     for cam, table in zip(cameras, tables):

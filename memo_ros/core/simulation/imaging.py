@@ -64,7 +64,10 @@ class ImagingOptions:
 
 
 def background_image(camera: Camera, seed: int = 0) -> np.ndarray:
-    """Return a static textured background (float32 grey levels) for ``camera``: tiled floor and mottled wall."""
+    """Return a static textured background (float32 grey levels) for ``camera``.
+
+    Tiled floor and mottled wall.
+    """
     rng = np.random.default_rng(seed)
     rays = camera.pixel_grid_rays(1.0)
     centre = np.asarray(camera.t_world_cam, float)
@@ -95,7 +98,10 @@ def background_image(camera: Camera, seed: int = 0) -> np.ndarray:
 
 
 def shade_body(rendering: Rendering, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Grey levels of the body pixels (float32, 0 elsewhere) and the body mask, from labels and normals."""
+    """Grey levels of the body pixels (float32, 0 elsewhere) and the body mask.
+
+    From labels and normals.
+    """
     if rendering.normal is None:
         raise ValueError('shade_body needs a rendering with normals')
     mask = rendering.label > 0
@@ -118,7 +124,10 @@ def compose_frame(
     rng: np.random.Generator,
     colour: bool = False,
 ) -> np.ndarray:
-    """One camera frame: body over background, blur, lighting gain, noise; uint8 (H, W) or (H, W, 3) BGR."""
+    """One camera frame.
+
+    Body over background, blur, lighting gain, noise; uint8 (H, W) or (H, W, 3) BGR.
+    """
     body, mask = shade_body(rendering, camera)
     if colour:
         tint = np.ones((len(PART_NAMES) + 1, 3), np.float32)

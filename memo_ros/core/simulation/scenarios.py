@@ -25,7 +25,10 @@ Trajectory = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray | None]]
 
 @dataclass
 class Scenario:
-    """A rig, a frame rate, a default length and the body's motion q(t) (and gait phase, if walking)."""
+    """A rig, a frame rate, a default length and the body's motion q(t).
+
+    And gait phase, if walking.
+    """
 
     name: str
     cameras: list[Camera]
@@ -42,11 +45,17 @@ class Scenario:
     )  # other nodes' parameters, by node name (walker_node)
 
     def coordinates(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Generalized coordinates (N, n) and gait phase (N,) or None at ``times`` (s from the start)."""
+        """Generalized coordinates (N, n) and gait phase (N,) or None at ``times``.
+
+        s from the start.
+        """
         return self.trajectory(np.asarray(times, float))
 
     def velocities(self, times: np.ndarray, dt: float = 1e-4) -> np.ndarray:
-        """Time derivative of the generalized coordinates (central differences of the smooth motion)."""
+        """Time derivative of the generalized coordinates.
+
+        Central differences of the smooth motion.
+        """
         after, _ = self.coordinates(times + dt / 2)
         before, _ = self.coordinates(times - dt / 2)
         return (after - before) / dt
@@ -66,7 +75,10 @@ def studio_cameras(width: int = 640, height: int = 480) -> list[Camera]:
 
 
 def street_camera(width: int = 640, height: int = 480) -> list[Camera]:
-    """Rohr's camera: 11 m from the path (world x axis), slightly above and looking down at the walker."""
+    """Rohr's camera.
+
+    11 m from the path (world x axis), slightly above and looking down at the walker.
+    """
     f = 1000.0 * width / 640.0
     return [
         Camera.look_at(
@@ -81,7 +93,10 @@ def street_camera(width: int = 640, height: int = 480) -> list[Camera]:
 
 
 def arm_motion(body: Body, duration: float) -> Trajectory:
-    """Right arm lifted forward and sideways, elbow bending, forearm twisting; the rest stands still."""
+    """Right arm lifted forward and sideways, elbow bending, forearm twisting.
+
+    The rest stands still.
+    """
     base = body.neutral()
     idx = body.coordinate_index
 
@@ -152,7 +167,8 @@ def make_scenario(
             rate,
             n,
             arm_motion(body, n / rate),
-            'three orthogonal cameras, right arm moving in 3D with elbow flexion and forearm rotation',
+            'three orthogonal cameras, right arm moving in 3D with elbow flexion and forearm '
+            'rotation',
             STUDIO_EMPTY_FRAMES,
             _studio_contours(),
         )
@@ -167,7 +183,8 @@ def make_scenario(
             arc_walk(
                 body, radius=1.0, speed=1.1, start_angle=np.radians(-100.0), cycle_length=1.3
             ),
-            'three orthogonal cameras, walking on a 1 m circle (turning), legs occluding each other',
+            'three orthogonal cameras, walking on a 1 m circle (turning), legs occluding each '
+            'other',
             STUDIO_EMPTY_FRAMES,
             _studio_contours(),
         )
@@ -204,7 +221,10 @@ STUDIO_EMPTY_FRAMES = 10
 
 
 def _studio_contours() -> dict:
-    """contour_node parameters for the studio: background learnt over the empty frames, every region kept."""
+    """contour_node parameters for the studio.
+
+    Background learnt over the empty frames, every region kept.
+    """
     return {
         'segmenter': 'background',
         'threshold': 1.0,

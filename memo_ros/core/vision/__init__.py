@@ -1,1 +1,4 @@
-"""The image front end: encodings, change detection (Rohr eq. 1), cleanup, backgrounds, contours, edges."""
+"""The image front end.
+
+Encodings, change detection (Rohr eq. 1), cleanup, backgrounds, contours, edges.
+"""

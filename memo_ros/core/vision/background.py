@@ -92,10 +92,10 @@ class BackgroundModel:
     ) -> None:
         """Learn from ``frame`` where ``background`` (bool (H, W)) says it shows the background.
 
-        There, pixels that have ``settled`` (not changed for several frames) take the frame's value when
-        their background is unseen or ``wrong`` (the frame differs from it: a ghost of the person, who has
-        left); the other seen pixels move by at most one grey level per frame (a running median that
-        follows the lighting, not a limb that passes by).
+        There, pixels that have ``settled`` (not changed for several frames) take the frame's value
+        when their background is unseen or ``wrong`` (the frame differs from it: a ghost of the
+        person, who has left); the other seen pixels move by at most one grey level per frame (a
+        running median that follows the lighting, not a limb that passes by).
         """
         frame = as_channels(frame)
         if frame.shape != self.image.shape:
@@ -120,7 +120,10 @@ def as_channels(frame: np.ndarray) -> np.ndarray:
 
 
 def grey_of(frame: np.ndarray) -> np.ndarray:
-    """Grey levels of an (H, W, C) or (H, W) uint8 image (channel mean for colour: no channel order needed)."""
+    """Grey levels of an (H, W, C) or (H, W) uint8 image.
+
+    Channel mean for colour: no channel order needed.
+    """
     frame = as_channels(frame)
     if frame.shape[2] == 1:
         return np.ascontiguousarray(frame[..., 0])
@@ -137,10 +140,11 @@ def compare(
 ) -> ChangeResult:
     """Eq. (1) of every channel of frame - background, each pixel's difference scaled by its noise.
 
-    The channels' energies ||X X* d_c||^2 are summed: a colour change that leaves the grey level alone
-    (skin against a beige wall) still counts.  Noisy pixels (edges of the background that shimmer) are
-    scaled down to the image's noise level first.  The mask is mean energy per channel > n T^2, with T
-    raised to ``noise_factor`` times the image's noise (default: one false pixel per 10^6).
+    The channels' energies ||X X* d_c||^2 are summed: a colour change that leaves the grey level
+    alone (skin against a beige wall) still counts.  Noisy pixels (edges of the background that
+    shimmer) are scaled down to the image's noise level first.  The mask is mean energy per channel
+    > n T^2, with T raised to ``noise_factor`` times the image's noise (default: one false pixel
+    per 10^6).
     """
     frame = as_channels(frame)
     channels = frame.shape[2]
@@ -170,10 +174,12 @@ def compare(
 def motion_regions(
     grey: np.ndarray, gap: int = 3, grow: int = 9, threshold: float = 12.0, min_area: int = 50
 ) -> np.ndarray:
-    """Per frame, where something moves: eq. (1) against the frames ``gap`` before and after, grown, hulled.
+    """Per frame, where something moves.
 
-    Moving pieces closer than 2 ``grow`` + 1 pixels are joined before their hull is taken, so the arms
-    and legs of one person make one region that holds the still torso between them.
+    Eq. (1) against the frames ``gap`` before and after, grown, hulled.
+
+    Moving pieces closer than 2 ``grow`` + 1 pixels are joined before their hull is taken, so the
+    arms and legs of one person make one region that holds the still torso between them.
     """
     grey = np.asarray(grey)
     count = len(grey)
@@ -203,7 +209,10 @@ def convex_regions(mask: np.ndarray, min_area: int = 50) -> np.ndarray:
 
 
 def masked_median(frames: np.ndarray, excluded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel and channel, the median over the frames where it is not excluded; and that count (H, W)."""
+    """Per pixel and channel, the median over the frames where it is not excluded.
+
+    And that count (H, W).
+    """
     frames = np.asarray(frames)
     stack = frames.astype(np.uint16)
     stack[excluded] = np.iinfo(np.uint16).max  # sorts after every grey level
@@ -231,7 +240,10 @@ def with_fallback(
 
 
 def fill_unseen(image: np.ndarray, unseen: np.ndarray, radius: int = 5) -> np.ndarray:
-    """Return the background with its unseen pixels inpainted from the seen ones around them (Telea)."""
+    """Return the background with its unseen pixels inpainted from the seen ones around them.
+
+    Telea.
+    """
     if not unseen.any():
         return image
     if unseen.all():
@@ -283,8 +295,11 @@ def noise_level(
 def moving_patches(
     frames: np.ndarray, gap: int = 3, box: int = 15, still: float = 6.0
 ) -> np.ndarray:
-    """Per frame, pixels whose ``box``-pixel patch changed by more than ``still`` grey levels (mean of the
-    largest channel difference) against the frames ``gap`` and 2 ``gap`` before and after (bool (K, H, W)).
+    """Per frame.
+
+    Pixels whose ``box``-pixel patch changed by more than ``still`` grey levels (mean of the
+    largest channel difference) against the frames ``gap`` and 2 ``gap`` before and after (bool (K,
+    H, W)).
     """
     frames = as_channels_stack(frames)
     count = len(frames)
@@ -323,10 +338,12 @@ def estimate_background(
     exclude_margin: int = 4,
     known_person: np.ndarray | None = None,
 ) -> BackgroundModel:
-    """Return the background of a sequence that never shows it empty (see the module docstring), from (K, H, W[, C]).
+    """Return the background of a sequence that never shows it empty (see the module docstring).
 
-    ``known_person`` (K, H, W) bool: where the person is known to be in each frame (the tracked body's
-    projection), never learnt from, however still he stands there.
+    From (K, H, W[, C]).
+
+    ``known_person`` (K, H, W) bool: where the person is known to be in each frame (the tracked
+    body's projection), never learnt from, however still he stands there.
     """
     frames = as_channels_stack(frames)
     grey = np.stack([grey_of(f) for f in frames])
@@ -365,11 +382,14 @@ def estimate_background(
 
 # ------------------------------------------------------------------ live segmenter
 class SequenceSegmenter:
-    """Raw person mask against a background learnt from the first frames of the sequence, then kept learning.
+    """Raw person mask against a background learnt from the first frames of the sequence.
 
-    The first ``learn_frames`` frames are buffered and :func:`estimate_background` runs on them (the last
-    of them is already segmented); afterwards :meth:`learn` is told, frame by frame, where the person is
-    (the kept regions and the tracked body's projection) and updates the model everywhere else.
+    Then kept learning.
+
+    The first ``learn_frames`` frames are buffered and :func:`estimate_background` runs on them
+    (the last of them is already segmented); afterwards :meth:`learn` is told, frame by frame,
+    where the person is (the kept regions and the tracked body's projection) and updates the model
+    everywhere else.
     """
 
     def __init__(
@@ -381,10 +401,11 @@ class SequenceSegmenter:
         still_sigmas: float = 4.0,
         settle_frames: int = 5,
     ) -> None:
-        """T of eq. (1) in grey levels; frames learnt from; noise floor (None: one false pixel per 10^6);
-        margin kept around the person (or the tracked body) when learning later frames, pixels; a pixel has
-        settled when it changed by at most ``still_sigmas`` noise sigmas in each of the last
-        ``settle_frames`` frames.
+        """T of eq. (1) in grey levels; frames learnt from.
+
+        Noise floor (None: one false pixel per 10^6); margin kept around the person (or the tracked
+        body) when learning later frames, pixels; a pixel has settled when it changed by at most
+        ``still_sigmas`` noise sigmas in each of the last ``settle_frames`` frames.
         """
         if learn_frames < 1:
             raise ValueError(f'learn_frames must be at least 1, got {learn_frames}')
@@ -421,7 +442,10 @@ class SequenceSegmenter:
         self._frames = []
 
     def segment(self, image: np.ndarray) -> ChangeResult | None:
-        """Eq. (1) of the frame against the background (raw mask, difference, noise), None while gathering."""
+        """Eq. (1) of the frame against the background (raw mask, difference, noise).
+
+        None while gathering.
+        """
         frame = as_channels(np.asarray(image))
         if self.model is not None and self.model.image.shape != frame.shape:
             self.reset()  # another image size: start over
@@ -436,8 +460,10 @@ class SequenceSegmenter:
         return result
 
     def learn(self, image: np.ndarray, person: np.ndarray, roi: np.ndarray | None = None) -> None:
-        """Update the model from a segmented frame, outside the grown tracked body ``roi`` when it is known
-        (a ghost stuck to the person's regions is learnt away there), else outside the grown person mask.
+        """Update the model from a segmented frame.
+
+        Outside the grown tracked body ``roi`` when it is known (a ghost stuck to the person's
+        regions is learnt away there), else outside the grown person mask.
         """
         if self.model is None:
             return
@@ -462,7 +488,10 @@ class SequenceSegmenter:
 
 # ------------------------------------------------------------------ images
 def evenly_spaced(count: int, most: int) -> np.ndarray:
-    """Return indices of at most ``most`` items spread evenly over ``count`` (all of them when there are fewer)."""
+    """Return indices of at most ``most`` items spread evenly over ``count``.
+
+    All of them when there are fewer.
+    """
     if count <= most:
         return np.arange(count)
     return np.unique(np.round(np.linspace(0, count - 1, most)).astype(int))
@@ -476,8 +505,8 @@ def background_from_frames(
 ) -> BackgroundModel:
     """:func:`estimate_background` of at most ``most`` frames spread evenly over a recording.
 
-    ``person_at(i)``: where the person is known to be in frame i (bool (H, W)), e.g. the tracked body of a
-    first pass over the recording, asked for the frames learnt from only.
+    ``person_at(i)``: where the person is known to be in frame i (bool (H, W)), e.g. the tracked
+    body of a first pass over the recording, asked for the frames learnt from only.
     """
     if not frames:
         raise ValueError('no frames to learn the background from')

@@ -47,7 +47,10 @@ def design_matrix() -> np.ndarray:
 
 
 class Workspace:
-    """Reusable float32 buffers for one image size: fresh 1 MB arrays per frame cost more than the filtering."""
+    """Reusable float32 buffers for one image size.
+
+    Fresh 1 MB arrays per frame cost more than the filtering.
+    """
 
     def __init__(self) -> None:
         """No buffers until the first image size is known."""
@@ -96,7 +99,10 @@ def _energy(difference: np.ndarray, ws: Workspace) -> np.ndarray:
 
 
 def projected_energy(difference: np.ndarray, workspace: Workspace | None = None) -> np.ndarray:
-    """||X X* d||^2 per pixel of a difference image: sum of six separable correlations squared (eq. 1)."""
+    """||X X* d||^2 per pixel of a difference image.
+
+    Sum of six separable correlations squared (eq. 1).
+    """
     d = np.ascontiguousarray(difference, np.float32)
     ws = (workspace or Workspace()).buffers(d.shape)
     return _energy(d, ws)
@@ -105,7 +111,10 @@ def projected_energy(difference: np.ndarray, workspace: Workspace | None = None)
 def change_statistic(
     frame_k: np.ndarray, frame_j: np.ndarray, workspace: Workspace | None = None
 ) -> np.ndarray:
-    """Left side of eq. (1), (1/sqrt(n)) ||X X* (g_k - g_j)||, per pixel (new float32 image, grey levels)."""
+    """Left side of eq. (1), (1/sqrt(n)) ||X X* (g_k - g_j)||, per pixel.
+
+    New float32 image, grey levels.
+    """
     ws = (workspace or Workspace()).buffers(np.shape(frame_k)[:2])
     energy = _energy(_difference(frame_k, frame_j, ws.difference), ws)
     return np.sqrt(energy) * np.float32(1.0 / np.sqrt(N_WINDOW))
@@ -114,7 +123,10 @@ def change_statistic(
 def change_mask(
     frame_k: np.ndarray, frame_j: np.ndarray, threshold: float, workspace: Workspace | None = None
 ) -> np.ndarray:
-    """Pixels with systematic change between two frames: eq. (1) > T (bool; a view of the workspace if given)."""
+    """Pixels with systematic change between two frames.
+
+    Eq. (1) > T (bool; a view of the workspace if given).
+    """
     ws = (workspace or Workspace()).buffers(np.shape(frame_k)[:2])
     energy = _energy(_difference(frame_k, frame_j, ws.difference), ws)
     return np.greater(
@@ -132,7 +144,10 @@ NOISE_FACTOR = (
 
 
 def noise_sigma(energy: np.ndarray, stride: int = 4) -> float:
-    """Sigma of the per-pixel difference noise from the lower quartile of ||X X* d||^2 (most pixels unchanged)."""
+    """Sigma of the per-pixel difference noise from the lower quartile of ||X X* d||^2.
+
+    Most pixels unchanged.
+    """
     sample = np.ascontiguousarray(energy[::stride, ::stride]).ravel()
     if sample.size == 0:
         return 0.0
@@ -142,7 +157,10 @@ def noise_sigma(energy: np.ndarray, stride: int = 4) -> float:
 
 @dataclass
 class ChangeResult:
-    """Eq. (1) between two frames: the mask, the difference g_k - g_j, the noise and the threshold used."""
+    """Eq. (1) between two frames.
+
+    The mask, the difference g_k - g_j, the noise and the threshold used.
+    """
 
     mask: (
         np.ndarray
@@ -159,7 +177,10 @@ def detect_changes(
     noise_factor: float = NOISE_FACTOR,
     workspace: Workspace | None = None,
 ) -> ChangeResult:
-    """Eq. (1) with T raised to ``noise_factor`` x the measured difference noise (0 = Rohr's fixed T)."""
+    """Eq. (1) with T raised to ``noise_factor`` x the measured difference noise.
+
+    0 = Rohr's fixed T.
+    """
     ws = (workspace or Workspace()).buffers(np.shape(frame_k)[:2])
     difference = _difference(frame_k, frame_j, ws.difference)
     energy = _energy(difference, ws)
@@ -170,7 +191,10 @@ def detect_changes(
 
 
 def change_statistic_reference(frame_k: np.ndarray, frame_j: np.ndarray) -> np.ndarray:
-    """Brute-force eq. (1): an explicit least-squares fit per 5x5 window (float64; for tests on small images)."""
+    """Brute-force eq. (1).
+
+    An explicit least-squares fit per 5x5 window (float64; for tests on small images).
+    """
     d = np.asarray(frame_k, np.float64) - np.asarray(frame_j, np.float64)
     padded = np.pad(d, 2, mode='reflect')  # = cv2.BORDER_REFLECT_101
     windows = np.lib.stride_tricks.sliding_window_view(padded, (WINDOW, WINDOW))  # (H, W, 5, 5)
@@ -185,18 +209,27 @@ class ChangeDetector:
     """Live change detection: each frame against the previous one (eq. 1 with j = k - 1)."""
 
     def __init__(self, threshold: float = 12.0, noise_factor: float = 0.0) -> None:
-        """``threshold``: T of eq. (1), grey levels; ``noise_factor`` > 0 raises T to that many noise sigmas."""
+        """``threshold``.
+
+        T of eq. (1), grey levels; ``noise_factor`` > 0 raises T to that many noise sigmas.
+        """
         self.threshold = float(threshold)
         self.noise_factor = float(noise_factor)
         self.previous: np.ndarray | None = None
         self.workspace = Workspace()
 
     def reset(self) -> None:
-        """Forget the previous frame (after a time jump), so the next frame only primes the detector."""
+        """Forget the previous frame (after a time jump).
+
+        So the next frame only primes the detector.
+        """
         self.previous = None
 
     def detect(self, frame: np.ndarray) -> ChangeResult | None:
-        """Eq. (1) of ``frame`` against the previous frame (buffers valid until the next call), None at first."""
+        """Eq. (1) of ``frame`` against the previous frame (buffers valid until the next call).
+
+        None at first.
+        """
         frame = np.asarray(frame)
         previous = self.previous
         if previous is None or previous.shape != frame.shape or previous.dtype != frame.dtype:

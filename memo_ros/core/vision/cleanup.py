@@ -18,7 +18,10 @@ def cleanup(
     max_iterations: int = 10,
     fill_holes: bool = True,
 ) -> np.ndarray:
-    """Rohr's binary cleanup: delete sparse points, mark dense gaps, repeat until stable, fill holes (bool)."""
+    """Rohr's binary cleanup.
+
+    Delete sparse points, mark dense gaps, repeat until stable, fill holes (bool).
+    """
     # Neighbours are the 8 pixels of the 3x3 window (outside the image counts as unflagged).  Every
     # iteration updates all pixels at once from the previous iteration's counts.  A flag can only
     # spread one pixel per iteration, so after the first (full-frame) iteration the work is done in
@@ -52,7 +55,10 @@ def cleanup(
 
 
 def _cleanup_step(m: np.ndarray, delete_below: int, fill_above: int) -> np.ndarray:
-    """One parallel update: keep flagged pixels with >= k1 flagged neighbours, add unflagged with > k2."""
+    """One parallel update.
+
+    Keep flagged pixels with >= k1 flagged neighbours, add unflagged with > k2.
+    """
     total = cv2.boxFilter(
         m, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT
     )  # 3x3 sum incl. self

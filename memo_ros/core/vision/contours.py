@@ -46,7 +46,10 @@ MIN_SMOOTH_SAMPLES = 8  # fewer samples: no smoothing, the polygon with finite-d
 
 # ------------------------------------------------------------------ contours
 def resample_closed(points: np.ndarray, step: float) -> np.ndarray:
-    """Points spaced ``step`` pixels along a closed polyline (N, 2), at least 3 when it has any length."""
+    """Points spaced ``step`` pixels along a closed polyline (N, 2).
+
+    At least 3 when it has any length.
+    """
     p = np.asarray(points, np.float64).reshape(-1, 2)
     closed = np.vstack([p, p[:1]])
     seg = np.hypot(*np.diff(closed, axis=0).T)
@@ -60,7 +63,10 @@ def resample_closed(points: np.ndarray, step: float) -> np.ndarray:
 
 
 def _orient_ccw_on_screen(p: np.ndarray) -> np.ndarray:
-    """Return the same closed polyline, reversed if needed so that its shoelace area (y down) is negative."""
+    """Return the same closed polyline.
+
+    Reversed if needed so that its shoelace area (y down) is negative.
+    """
     x, y = p[:, 0], p[:, 1]
     area2 = np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)
     return p[::-1].copy() if area2 > 0 else p
@@ -76,7 +82,10 @@ def _polygon_tangents(p: np.ndarray) -> np.ndarray:
 def smooth_closed_contour(
     outline: np.ndarray, step: float = 2.0, smoothing: float = 2.0, offset: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Return samples (M, 2) of a closed outline every ``step`` px, low-passed along its arc, and unit tangents (M, 2)."""
+    """Return samples (M, 2) of a closed outline every ``step`` px, low-passed along its arc.
+
+    And unit tangents (M, 2).
+    """
     # ``offset`` moves the samples along the outward normal (-ty, tx): 0.5 px takes the centres of
     # a
     # region's boundary pixels to the pixel edges, where the silhouette's boundary lies.
@@ -110,7 +119,10 @@ def smooth_closed_contour(
 
 
 def _respace(xy: np.ndarray, tangent: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Return samples of a smooth closed curve moved to spacing ``step`` along its own arc (the pixel staircase was longer)."""
+    """Return samples of a smooth closed curve moved to spacing ``step`` along its own arc.
+
+    The pixel staircase was longer.
+    """
     closed_xy = np.vstack([xy, xy[:1]])
     closed_t = np.vstack([tangent, tangent[:1]])
     arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(closed_xy, axis=0).T))])
@@ -133,7 +145,10 @@ def perimeter(p: np.ndarray) -> float:
 
 
 def silhouette_outlines(mask: np.ndarray, min_area: int = 200) -> list[np.ndarray]:
-    """Outer outlines (float pixels) of every region of a binary mask, kept as contour_node keeps them."""
+    """Outer outlines (float pixels) of every region of a binary mask.
+
+    Kept as contour_node keeps them.
+    """
     _, regions = select_regions(mask, min_area, keep='all')
     return [r.outline.astype(float) for r in regions]
 
@@ -141,7 +156,10 @@ def silhouette_outlines(mask: np.ndarray, min_area: int = 200) -> list[np.ndarra
 def occluding_contours(
     outlines: list[np.ndarray], step: float = 2.0, smoothing: float = 2.0, offset: float = 0.5
 ) -> np.ndarray:
-    """Smoothed samples of each outline with unit tangents: a CONTOUR_DTYPE table, contour id = outline index."""
+    """Smoothed samples of each outline with unit tangents.
+
+    a CONTOUR_DTYPE table, contour id = outline index.
+    """
     if step <= 0:
         raise ValueError(f'contour step must be positive, got {step}')
     if smoothing < 0:
@@ -190,7 +208,10 @@ class PipelineResult:
 
 
 class ContourPipeline:
-    """Grey frame -> person mask, enclosing rectangle, occluding contours, edge lines, per-stage timings."""
+    """Grey frame -> person mask, enclosing rectangle, occluding contours, edge lines.
+
+    Per-stage timings.
+    """
 
     STAGES = ('segment', 'cleanup', 'contours', 'edges')
 
@@ -217,19 +238,27 @@ class ContourPipeline:
 
     @property
     def background(self) -> np.ndarray | None:
-        """The background segmenter's learnt (or given) background; None while learning or for change detection."""
+        """The background segmenter's learnt (or given) background.
+
+        None while learning or for change detection.
+        """
         method = self.segmenter.method
         return method.background if isinstance(method, BackgroundSegmenter) else None
 
     def set_roi(self, roi: np.ndarray | None) -> None:
-        """Where the tracked body is expected (bool (H, W)), for keep='tracked' and the sequence segmenter."""
+        """Where the tracked body is expected (bool (H, W)).
+
+        For keep='tracked' and the sequence segmenter.
+        """
         self.segmenter.set_roi(roi)
 
     def process(self, image: np.ndarray, edges: bool | None = None) -> PipelineResult:
-        """Run one frame through every stage: grey uint8 (H, W), or (H, W, C) for the sequence segmenter.
+        """Run one frame through every stage.
 
-        ``edges`` overrides the settings' choice of computing the edge lines
-        (only Rohr's walker uses them: a node computes them when someone listens).
+        Grey uint8 (H, W), or (H, W, C) for the sequence segmenter.
+
+        ``edges`` overrides the settings' choice of computing the edge lines (only Rohr's walker
+        uses them: a node computes them when someone listens).
         """
         s = self.settings
         want_edges = s.edges if edges is None else edges

@@ -53,7 +53,10 @@ def _roi(
 
 
 def edge_chains(edge_map: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ordered chains of an 8-connected edge map: points (N, 2) int32 (x, y) and chain ids (N,), chains contiguous."""
+    """Ordered chains of an 8-connected edge map.
+
+    Points (N, 2) int32 (x, y) and chain ids (N,), chains contiguous.
+    """
     traces, _ = cv2.findContours(edge_map, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     if not traces:
         return np.zeros((0, 2), np.int32), np.zeros(0, np.int64)
@@ -77,7 +80,10 @@ def _closed_chains(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> 
 def _loop_vertices(
     points: np.ndarray, chain: np.ndarray, tolerance: float
 ) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
-    """Return the closed chains rotated to start at a corner and closed on it, with their closed-polygon vertices."""
+    """Return the closed chains rotated to start at a corner and closed on it.
+
+    With their closed-polygon vertices.
+    """
     starts = np.flatnonzero(np.r_[True, chain[1:] != chain[:-1]])
     ends = np.r_[starts[1:], len(points)]
     closed = np.flatnonzero(_closed_chains(points, starts, ends))
@@ -102,7 +108,10 @@ def _loop_vertices(
 def split_chains(
     points: np.ndarray, chain: np.ndarray, tolerance: float, shape: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Douglas-Peucker split of contiguous chains: points with inner vertices doubled, piece and chain ids."""
+    """Douglas-Peucker split of contiguous chains.
+
+    Points with inner vertices doubled, piece and chain ids.
+    """
     # recursive splitting at the farthest point (cv2.approxPolyDP) per chain; the vertices are
     # chain
     # pixels, located through an image of positions; a vertex ends one piece and starts the next.
@@ -140,7 +149,10 @@ def split_chains(
 def fit_lines(
     points: np.ndarray, piece: np.ndarray, weights_at: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Eigenvector line fit of contiguous pieces: endpoints (K, 2, 2), lengths (K,), mean weight (K,)."""
+    """Eigenvector line fit of contiguous pieces.
+
+    Endpoints (K, 2, 2), lengths (K,), mean weight (K,).
+    """
     p = points.astype(np.float64)
     starts = np.flatnonzero(np.r_[True, piece[1:] != piece[:-1]])
     n = np.diff(np.r_[starts, len(p)]).astype(np.float64)
@@ -174,7 +186,10 @@ def edge_lines(
     tolerance: float = 1.5,
     margin: int = 3,
 ) -> np.ndarray:
-    """Straight edge lines of ``grey`` inside ``box`` (x, y, w, h; None = whole image): an EDGE_DTYPE table."""
+    """Straight edge lines of ``grey`` inside ``box`` (x, y, w, h; None = whole image).
+
+    An EDGE_DTYPE table.
+    """
     grey = np.asarray(grey)
     x0, y0, x1, y1 = _roi(box, margin, grey.shape[:2])
     if x1 - x0 < 3 or y1 - y0 < 3:
@@ -208,7 +223,10 @@ def edge_lines(
 
 
 def merge_boxes(boxes: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
-    """Rectangles (x, y, w, h) with every overlapping pair replaced by their union, until none overlap."""
+    """Rectangles (x, y, w, h) with every overlapping pair replaced by their union.
+
+    Until none overlap.
+    """
     merged = [tuple(int(v) for v in b) for b in boxes]
     changed = True
     while changed and len(merged) > 1:
@@ -237,7 +255,10 @@ def edge_lines_in_boxes(
     tolerance: float = 1.5,
     margin: int = 3,
 ) -> np.ndarray:
-    """Edge lines inside each of several rectangles (overlapping ones merged, margins included); chain ids unique."""
+    """Edge lines inside each of several rectangles (overlapping ones merged, margins included).
+
+    Chain ids unique.
+    """
     tables, next_chain = [], 0
     grown = [(x - margin, y - margin, w + 2 * margin, h + 2 * margin) for x, y, w, h in boxes]
     for x, y, w, h in merge_boxes(grown):

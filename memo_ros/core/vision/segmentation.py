@@ -1,4 +1,6 @@
-"""Person segmentation: raw change masks, Rohr's binary cleanup, regions with rectangle and outline.
+"""Person segmentation.
+
+Raw change masks, Rohr's binary cleanup, regions with rectangle and outline.
 
 Two segmenters give a raw boolean mask of "person" pixels:
 
@@ -16,13 +18,12 @@ Two segmenters give a raw boolean mask of "person" pixels:
   colour, with a per-pixel noise model, and learnt further from every later
   frame outside the person and the tracked body.
 
-Both feed the same :func:`cleanup` (Rohr §4.1: "detected image points having a
-small number of neighbors in a 3x3 window are deleted and nondetected points
-with a large number of neighbors are marked", repeated until stable, then the
-remaining holes filled) and :func:`select_regions` (enclosing rectangle and
-outline of each kept region, Rohr Figs. 10-11).  ``keep='tracked'`` keeps the
-regions that overlap a prior (the tracked body's projection, else the previous
-frame's person grown), so people in the background are not taken for him.
+Both feed the same :func:`cleanup` (Rohr §4.1: "detected image points having a small number of
+neighbors in a 3x3 window are deleted and nondetected points with a large number of neighbors are
+marked", repeated until stable, then the remaining holes filled) and :func:`select_regions`
+(enclosing rectangle and outline of each kept region, Rohr Figs. 10-11).  ``keep='tracked'`` keeps
+the regions that overlap a prior (the tracked body's projection, else the previous frame's person
+grown), so people in the background are not taken for him.
 """
 
 from __future__ import annotations
@@ -64,9 +65,11 @@ class Region:
 def select_regions(
     mask: np.ndarray, min_area: int = 200, keep: str = 'largest', prior: np.ndarray | None = None
 ) -> tuple[np.ndarray, list[Region]]:
-    """Keep the largest, every, or (``'tracked'``) every region overlapping ``prior`` among the 8-connected
-    regions of at least ``min_area`` pixels: kept mask, regions.  'tracked' without a prior, or when no
-    region overlaps it, keeps the largest.
+    """Keep the largest, every.
+
+    Or (``'tracked'``) every region overlapping ``prior`` among the 8-connected regions of at least
+    ``min_area`` pixels: kept mask, regions. 'tracked' without a prior, or when no region overlaps
+    it, keeps the largest.
     """
     if keep not in KEEP_MODES:
         raise ValueError(f'keep must be one of {", ".join(KEEP_MODES)}, got {keep!r}')
@@ -123,7 +126,10 @@ class ChangeSegmenter:
     """Raw person mask from Rohr's change detection against the previous frame (eq. 1, j = k - 1)."""
 
     def __init__(self, threshold: float = 12.0, noise_factor: float = NOISE_FACTOR) -> None:
-        """``threshold``: T of eq. (1), grey levels, raised to ``noise_factor`` noise sigmas (0: fixed T)."""
+        """``threshold``.
+
+        T of eq. (1), grey levels, raised to ``noise_factor`` noise sigmas (0: fixed T).
+        """
         self.detector = ChangeDetector(threshold, noise_factor)
 
     @property
@@ -136,12 +142,18 @@ class ChangeSegmenter:
         self.detector.reset()
 
     def segment(self, grey: np.ndarray) -> ChangeResult | None:
-        """Eq. (1) against the previous frame (raw mask, difference, noise), None without a previous frame."""
+        """Eq. (1) against the previous frame (raw mask, difference, noise).
+
+        None without a previous frame.
+        """
         return self.detector.detect(grey)
 
 
 class BackgroundSegmenter:
-    """Raw person mask: eq. (1) between the frame and a static background (median of the first N frames)."""
+    """Raw person mask.
+
+    Eq. (1) between the frame and a static background (median of the first N frames).
+    """
 
     def __init__(
         self,
@@ -150,7 +162,10 @@ class BackgroundSegmenter:
         noise_factor: float = NOISE_FACTOR,
         compensate_gain: bool = True,
     ) -> None:
-        """T of eq. (1) against the background; N learning frames; noise floor; global gain compensation."""
+        """T of eq. (1) against the background; N learning frames; noise floor.
+
+        Global gain compensation.
+        """
         if learn_frames < 1:
             raise ValueError(f'learn_frames must be at least 1, got {learn_frames}')
         self.threshold = float(threshold)
@@ -180,7 +195,10 @@ class BackgroundSegmenter:
         self._learning, self._count = None, 0
 
     def _reference(self, grey: np.ndarray) -> np.ndarray:
-        """Return the background, scaled by the frame's global gain (slow lighting changes) when that is on."""
+        """Return the background.
+
+        Scaled by the frame's global gain (slow lighting changes) when that is on.
+        """
         if not self.compensate_gain:
             return self.background
         sample_bg = self.background[::8, ::8].astype(np.float32)
@@ -223,7 +241,10 @@ def refine_boundary(
     pixel_threshold: float,
     depth: int = 2,
 ) -> np.ndarray:
-    """Undo eq. (1)'s 2 px spread: keep the filled core, and near its edge only pixels whose own |d| is large."""
+    """Undo eq. (1)'s 2 px spread.
+
+    Keep the filled core, and near its edge only pixels whose own |d| is large.
+    """
     # The 5x5 fit flags pixels up to 2 px outside a strong step edge; the core (filled mask eroded
     # by
     # ``depth``) lies inside, the band around it is decided per pixel: raw flag and |g_k - g_j| >
@@ -247,7 +268,10 @@ def refine_boundary(
 def carve_background_channels(
     mask: np.ndarray, difference: np.ndarray, pixel_threshold: float
 ) -> np.ndarray:
-    """Remove from ``mask`` the unchanged pixels (|d| <= t) that connect 4-wise to the outside (bool)."""
+    """Remove from ``mask`` the unchanged pixels (|d| <= t) that connect 4-wise to the outside.
+
+    Bool.
+    """
     # The 5x5 fit of eq. (1) spreads 2 px from either side of a gap, so a slit up to 4 px wide (an
     # arm
     # hanging next to the trunk) is flagged in full and is no band pixel of refine_boundary.  Where
@@ -356,13 +380,19 @@ class Segmenter:
         self.roi = None if roi is None else np.asarray(roi, bool)
 
     def raw(self, image: np.ndarray) -> ChangeResult | None:
-        """Return the segmenter's eq. (1) result (raw mask, difference, noise), None while warming up."""
+        """Return the segmenter's eq. (1) result (raw mask, difference, noise).
+
+        None while warming up.
+        """
         self._image = image
         self.last_change = self.method.segment(image)
         return self.last_change
 
     def _prior(self, shape: tuple[int, int]) -> np.ndarray | None:
-        """Return the tracked region: the body's projection, else the previous frame's person grown."""
+        """Return the tracked region.
+
+        The body's projection, else the previous frame's person grown.
+        """
         if self.roi is not None and self.roi.shape == shape:
             return self.roi
         if self.previous is None or self.previous.shape != shape or not self.previous.any():

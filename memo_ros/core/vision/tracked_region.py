@@ -21,10 +21,13 @@ from memo_ros.core.geometry.render import render_labels
 def parts_from_cylinders(
     centres: np.ndarray, rotations: np.ndarray, scales: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Part origins (P, 3), semi-axes (P, 2) and lengths (P,) of cylinders given by centre, rotation, scale.
+    """Part origins (P, 3), semi-axes (P, 2) and lengths (P,) of cylinders given by centre.
 
-    ``scales`` are (2 a, 2 b, length) per part, the part's axis is the rotation's z column and its origin
-    is half a length below the centre, as :func:`memo_ros.ros.body_messages.marker_array_message` writes.
+    Rotation, scale.
+
+    ``scales`` are (2 a, 2 b, length) per part, the part's axis is the rotation's z column and its
+    origin is half a length below the centre, as
+    :func:`memo_ros.ros.body_messages.marker_array_message` writes.
     """
     centres = np.asarray(centres, float).reshape(-1, 3)
     rotations = np.asarray(rotations, float).reshape(-1, 3, 3)
@@ -46,8 +49,9 @@ def body_region(
 ) -> np.ndarray:
     """Pixels (bool ``shape``) within ``margin_px`` of the body's projection into ``camera``.
 
-    ``shape`` is the image's (height, width); the camera is rescaled to it if its calibration is for
-    another size.  The body is rendered at ``scale`` of that size (the margin hides the coarser outline).
+    ``shape`` is the image's (height, width); the camera is rescaled to it if its calibration is
+    for another size.  The body is rendered at ``scale`` of that size (the margin hides the coarser
+    outline).
     """
     height, width = shape
     if (camera.width, camera.height) != (width, height):
@@ -70,9 +74,10 @@ def tracked_person(
     shape: tuple[int, int],
     margin_px: float,
 ) -> Callable[[int], np.ndarray]:
-    """``person_at(i)`` for :func:`~memo_ros.core.vision.background.background_from_frames`: the body tracked at
-    ``stamps[i]`` (rotations, origins, semi_axes, lengths) projected and grown by ``margin_px``; nowhere when
-    that frame has no tracked body.
+    """``person_at(i)`` for :func:`~memo_ros.core.vision.background.background_from_frames`.
+
+    The body tracked at ``stamps[i]`` (rotations, origins, semi_axes, lengths) projected and grown
+    by ``margin_px``; nowhere when that frame has no tracked body.
     """
 
     def person_at(i: int) -> np.ndarray:

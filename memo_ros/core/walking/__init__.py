@@ -1,1 +1,4 @@
-"""Rohr's MEMO walker: gait model, model contours, similarity, position, search, Kalman filter, tracker."""
+"""Rohr's MEMO walker.
+
+Gait model, model contours, similarity, position, search, Kalman filter, tracker.
+"""

@@ -88,7 +88,10 @@ class WalkingModel:
         return q
 
     def coordinates(self, pose, x=0.0, y=0.0, heading=0.0) -> np.ndarray:
-        """Full generalized coordinates: walking posture at ``pose``, pelvis over (x, y), facing ``heading`` (rad)."""
+        """Full generalized coordinates.
+
+        Walking posture at ``pose``, pelvis over (x, y), facing ``heading`` (rad).
+        """
         pose = np.asarray(pose, float)
         q = self.posture(pose)
         q[..., 0] = x

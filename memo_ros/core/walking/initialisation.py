@@ -1,12 +1,13 @@
-"""Rohr §5.1/§6: starting values from the single-image estimates of about half a cycle (images 2-14).
+"""Rohr §5.1/§6.
 
-The pose estimates lie approximately on two lines half a cycle apart (the
-actual movement and the one with the legs swapped).  The lines are found by a
-robust fit of ``pose = phi + v k (mod 1/2)``; if one line holds more than half
-as many estimates as the other, the line with the higher mean similarity wins,
-else the line with more estimates.  Starting values come from linear
-regression: pose and pose' over all estimates mapped onto the chosen line, X
-and X' over the positions, Y and Z as medians (robust to a rectangle that lost a limb).
+Starting values from the single-image estimates of about half a cycle (images 2-14).
+
+The pose estimates lie approximately on two lines half a cycle apart (the actual movement and the
+one with the legs swapped).  The lines are found by a robust fit of ``pose = phi + v k (mod 1/2)``;
+if one line holds more than half as many estimates as the other, the line with the higher mean
+similarity wins, else the line with more estimates.  Starting values come from linear regression:
+pose and pose' over all estimates mapped onto the chosen line, X and X' over the positions, Y and Z
+as medians (robust to a rectangle that lost a limb).
 """
 
 from __future__ import annotations

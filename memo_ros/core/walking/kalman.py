@@ -1,8 +1,10 @@
-"""Rohr §5.2: the discrete linear Kalman filter over p = (X, X', Y, Y', Z, Z', pose, pose') (eq. 12-22).
+"""Rohr §5.2.
 
-Units: metres and gait cycles; time in images (the paper's Delta t = 1 image),
-so velocities are per image.  Z (depth) and Y' are held: their process noise
-and initial variances are zero, so no measurement moves them (§6).
+The discrete linear Kalman filter over p = (X, X', Y, Y', Z, Z', pose, pose') (eq. 12-22).
+
+Units: metres and gait cycles; time in images (the paper's Delta t = 1 image), so velocities are
+per image.  Z (depth) and Y' are held: their process noise and initial variances are zero, so no
+measurement moves them (§6).
 """
 
 from __future__ import annotations
@@ -17,7 +19,10 @@ MEASURED = (0, 2, 4, 6)  # eq. 21: X, Y, Z, pose
 
 @dataclass(frozen=True)
 class KalmanParams:
-    """Rohr §6's values, in metres and cycles per image (25 images/s, 1.6 m and 1 cycle per second)."""
+    """Rohr §6's values, in metres and cycles per image.
+
+    25 images/s, 1.6 m and 1 cycle per second.
+    """
 
     q_x_dot: float = 3.69e-4  # sigma^2_QX' = 3.69 cm^2/image^2
     q_y_dot: float = 0.0  # sigma^2_QY' = 0: Y' = 0
@@ -55,8 +60,10 @@ def measurement_noise(params: KalmanParams) -> np.ndarray:
 
 
 def initial_covariance(params: KalmanParams) -> np.ndarray:
-    """P_0: the measurement variances for X, Y, pose ('the same uncertainties'), the process ones for
-    their velocities, zero for the held Z, Z' and Y'.
+    """P_0.
+
+    The measurement variances for X, Y, pose ('the same uncertainties'), the process ones for their
+    velocities, zero for the held Z, Z' and Y'.
     """
     return np.diag(
         [params.r_x, params.q_x_dot, params.r_y, 0.0, 0.0, 0.0, params.r_pose, params.q_pose_dot]

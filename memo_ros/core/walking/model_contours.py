@@ -1,14 +1,14 @@
-"""Visible model contours (Rohr §3.2, §4.3): the straight outline lines of the 14 cylinders in one pose.
+"""Visible model contours (Rohr §3.2, §4.3).
 
-Each elliptic cylinder contributes its two silhouette generators (the surface
-lines where the viewing ray from the camera centre grazes the side, found
-exactly: with the camera centre ``o`` in the part frame, generator angle theta
-satisfies ``(o_x / a) cos theta + (o_y / b) sin theta = 1``) and the chords
-closing its two ends.  Hidden contours are removed with the renderer's label
-image: a sample of a line is visible where the pixel just inside it shows this
-part and the pixel just outside does not (so the rendered image has an edge
-there).  Visible runs become the model contours, kept as 3D segments so that a
-shifted model can be projected exactly.
+The straight outline lines of the 14 cylinders in one pose.
+
+Each elliptic cylinder contributes its two silhouette generators (the surface lines where the
+viewing ray from the camera centre grazes the side, found exactly: with the camera centre ``o`` in
+the part frame, generator angle theta satisfies ``(o_x / a) cos theta + (o_y / b) sin theta = 1``)
+and the chords closing its two ends.  Hidden contours are removed with the renderer's label image:
+a sample of a line is visible where the pixel just inside it shows this part and the pixel just
+outside does not (so the rendered image has an edge there).  Visible runs become the model
+contours, kept as 3D segments so that a shifted model can be projected exactly.
 """
 
 from __future__ import annotations
@@ -43,7 +43,10 @@ class ModelContours:
     def project(
         self, camera: Camera, offsets: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel endpoints (N, S, 2) of the contours moved by ``offsets`` (N, 3) (default: not moved, N = 1)."""
+        """Pixel endpoints (N, S, 2) of the contours moved by ``offsets`` (N, 3).
+
+        Default: not moved, N = 1.
+        """
         a, b = self.shifted(np.zeros((1, 3)) if offsets is None else offsets)
         return camera.project(a), camera.project(b)
 
@@ -57,8 +60,9 @@ def outline_segments(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All candidate outline lines: starts, ends (P*4, 3) in world, parts (P*4,), kinds (P*4,).
 
-    Per part: the two silhouette generators, then the chords of the z = 0 and z = length ends.
-    A part whose cross-section contains the camera centre's foot point has no generators (zero-length lines).
+    Per part: the two silhouette generators, then the chords of the z = 0 and z = length ends. A
+    part whose cross-section contains the camera centre's foot point has no generators (zero-length
+    lines).
     """
     n = len(lengths)
     o = np.einsum(
@@ -96,7 +100,10 @@ def visible_contours(
     inset: float = 1.0,
     min_length: float = 3.0,
 ) -> tuple[ModelContours, Rendering]:
-    """Visible runs (at least ``min_length`` px) of the outline lines, hidden ones removed by the label image."""
+    """Visible runs (at least ``min_length`` px) of the outline lines.
+
+    Hidden ones removed by the label image.
+    """
     if rendering is None:
         rendering = render(camera, rotations, origins, semi_axes, lengths)
     label = rendering.label

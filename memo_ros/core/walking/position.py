@@ -24,7 +24,10 @@ UP = np.array([0.0, 0.0, 1.0])
 
 @dataclass
 class BoxPosition:
-    """Eq. 2-6's solution: sole and head-top points in world, the shifted midpoints and the scale factors."""
+    """Eq. 2-6's solution.
+
+    Sole and head-top points in world, the shifted midpoints and the scale factors.
+    """
 
     sole: np.ndarray  # X_u (3,), world metres
     top: np.ndarray  # X_u + H (3,)
@@ -35,7 +38,10 @@ class BoxPosition:
 
 
 def projection_matrix(camera: Camera) -> np.ndarray:
-    """Return the 3x4 matrix T of eq. 2 (rows 1, 2, 4 of Rohr's 4x4) for ideal pixels: K [R^T | -R^T t]."""
+    """Return the 3x4 matrix T of eq. 2 (rows 1, 2, 4 of Rohr's 4x4) for ideal pixels.
+
+    K [R^T | -R^T t].
+    """
     R = camera.R_world_cam
     return camera.K @ np.hstack([R.T, (-R.T @ camera.t_world_cam)[:, None]])
 
@@ -57,7 +63,10 @@ def ideal_pixels(camera: Camera, uv: np.ndarray) -> np.ndarray:
 def rohr_system(
     T: np.ndarray, bottom: np.ndarray, top: np.ndarray, height: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """T* (6, 5) and b* (6,) of eq. 6 for midpoints ``bottom`` = x_u, ``top`` = x_o (pixels) and height H."""
+    """T* (6, 5) and b* (6,) of eq. 6 for midpoints ``bottom`` = x_u.
+
+    ``top`` = x_o (pixels) and height H.
+    """
     (xu, yu), (xo, yo) = bottom, top
     t_star = np.array(
         [
@@ -82,7 +91,10 @@ def _project_onto_line(line: np.ndarray, point: np.ndarray) -> np.ndarray:
 
 
 def position_from_box(camera: Camera, bottom_px, top_px, height: float) -> BoxPosition:
-    """Solve eq. 2-6 for the sole X_u from the rectangle's bottom and top midpoints (measured pixels)."""
+    """Solve eq. 2-6 for the sole X_u from the rectangle's bottom and top midpoints.
+
+    Measured pixels.
+    """
     if not height > 0:
         raise ValueError(f'the assumed person height must be positive, got {height}')
     T = projection_matrix(camera)
@@ -108,7 +120,10 @@ def position_from_box(camera: Camera, bottom_px, top_px, height: float) -> BoxPo
 
 
 def box_midpoints(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bottom and top edge midpoints (pixels) of contour_node's rectangle corners (x..x+w, y..y+h bounds)."""
+    """Bottom and top edge midpoints (pixels) of contour_node's rectangle corners.
+
+    x..x+w, y..y+h bounds.
+    """
     corners = np.asarray(corners, float).reshape(-1, 2)
     x0, y0 = (
         corners.min(axis=0) - 0.5

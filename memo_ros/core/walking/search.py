@@ -1,15 +1,15 @@
-"""Rohr §4.3: single-image estimation of (X, Y, pose) by grid search on the similarity s(p) (eq. 11).
+"""Rohr §4.3.
 
-The walker's parameters: X along the path (world x, pelvis centre), Y the
-vertical offset of the walking model (pelvis height = Y + the model's vertical
-displacement at ``pose``; 0 on flat ground), Z the depth (world y), and pose.
-The grid is the paper's (2 cm in X and Y, 0.02 in pose, every point scored);
-to make it cheap, the visible contours of a pose value are computed once (one
-rendering) at a reference position and moved rigidly in 3D to every (X, Y)
-grid point, then projected exactly.  A pose's contours are reused, also in
-later frames, while the reference lies within ``reuse_distance`` (25 cm) of the
-searched position: at 11 m that neglects a change of viewing direction of
-about 1 degree (parallax between near and far parts well under a pixel).
+Single-image estimation of (X, Y, pose) by grid search on the similarity s(p) (eq. 11).
+
+The walker's parameters: X along the path (world x, pelvis centre), Y the vertical offset of the
+walking model (pelvis height = Y + the model's vertical displacement at ``pose``; 0 on flat
+ground), Z the depth (world y), and pose. The grid is the paper's (2 cm in X and Y, 0.02 in pose,
+every point scored); to make it cheap, the visible contours of a pose value are computed once (one
+rendering) at a reference position and moved rigidly in 3D to every (X, Y) grid point, then
+projected exactly.  A pose's contours are reused, also in later frames, while the reference lies
+within ``reuse_distance`` (25 cm) of the searched position: at 11 m that neglects a change of
+viewing direction of about 1 degree (parallax between near and far parts well under a pixel).
 """
 
 from __future__ import annotations
@@ -32,7 +32,10 @@ from memo_ros.core.walking.similarity import (
 
 @dataclass
 class SearchResult:
-    """The best grid point, its similarity, the grid's similarity over pose (Rohr Fig. 19) and the cost."""
+    """The best grid point, its similarity.
+
+    The grid's similarity over pose (Rohr Fig. 19) and the cost.
+    """
 
     X: float
     Y: float
@@ -67,7 +70,10 @@ class WalkerModel:
     def reusable_contours(
         self, position: np.ndarray, pose: float, heading: float
     ) -> tuple[np.ndarray, ModelContours]:
-        """Contours of ``pose`` at a reference position within ``reuse_distance`` of ``position`` (X, Y, Z)."""
+        """Contours of ``pose`` at a reference position within ``reuse_distance`` of ``position``.
+
+        X, Y, Z.
+        """
         key = (round(float(np.mod(pose, 1.0)), 9) % 1.0, round(heading, 9))
         hit = self._cache.get(key)
         if hit is not None and np.linalg.norm(hit[0] - position) <= self.reuse_distance:
@@ -79,7 +85,10 @@ class WalkerModel:
         return position, contours
 
     def coordinates(self, X: float, Y: float, Z: float, pose, heading: float = 0.0) -> np.ndarray:
-        """Generalized coordinates of the walker at (X, Y, Z, pose), facing ``heading`` (rad about world z)."""
+        """Generalized coordinates of the walker at (X, Y, Z, pose), facing ``heading``.
+
+        Rad about world z.
+        """
         q = self.walking.coordinates(pose, X, Z, heading)
         q[..., 2] += Y
         return q
@@ -95,7 +104,10 @@ class WalkerModel:
         return contours
 
     def head_top_height(self) -> float:
-        """Mean height of the top of the head over the gait cycle on flat ground: the default assumed H."""
+        """Mean height of the top of the head over the gait cycle on flat ground.
+
+        The default assumed H.
+        """
         q = self.coordinates(0.0, 0.0, 0.0, np.linspace(0.0, 1.0, 50, endpoint=False))
         rotations, origins = self.body.forward_kinematics(q)
         return float(self.body.distal_ends(rotations, origins)[:, 1, 2].mean())
@@ -111,7 +123,10 @@ class WalkerModel:
         dy: np.ndarray,
         heading: float = 0.0,
     ) -> SearchResult:
-        """Score every grid point (X + dx, Y + dy, pose) against ``edges`` (E, 5); the best one wins."""
+        """Score every grid point (X + dx, Y + dy, pose) against ``edges`` (E, 5).
+
+        The best one wins.
+        """
         start = time.perf_counter()
         poses = np.asarray(poses, float)
         gx, gy = np.meshgrid(np.asarray(dx, float), np.asarray(dy, float), indexing='ij')

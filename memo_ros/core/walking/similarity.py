@@ -41,8 +41,9 @@ class SimilarityParams:
 def candidate_edges(
     a: np.ndarray, b: np.ndarray, edges: np.ndarray, margin: float, params: SimilarityParams
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(contour, edge) pairs worth scoring for contours a, b (S, 2) moved by up to ``margin`` px:
-    the edge reaches the grown window and its angle is within 3 sigma_phi.  Sorted by contour.
+    """(contour, edge) pairs worth scoring for contours a, b (S, 2) moved by up to ``margin`` px.
+
+    The edge reaches the grown window and its angle is within 3 sigma_phi. Sorted by contour.
     """
     S, E = len(a), len(edges)
     if S == 0 or E == 0:
@@ -74,7 +75,10 @@ def contour_scores(
     params: SimilarityParams,
     weights: np.ndarray | None = None,
 ) -> np.ndarray:
-    """s_i of the best edge per window (eq. 7, 8) for contours a, b (N, S, 2) and candidate pairs: (N, S)."""
+    """s_i of the best edge per window (eq. 7, 8) for contours a, b (N, S, 2) and candidate pairs.
+
+    (N, S).
+    """
     N, S = a.shape[:2]
     best = np.zeros((N, S))
     if S == 0 or len(contour) == 0:
@@ -146,7 +150,10 @@ def gradient_weights(edges: np.ndarray) -> np.ndarray:
 
 
 def edge_table(edges) -> np.ndarray:
-    """Return an EDGE_DTYPE record array (or an (E, >=4) array) as a float (E, 5) array x1, y1, x2, y2, magnitude."""
+    """Return an EDGE_DTYPE record array (or an (E, >=4) array) as a float (E, 5) array x1, y1, x2.
+
+    y2, magnitude.
+    """
     if getattr(edges, 'dtype', None) is not None and edges.dtype.names:
         return np.stack(
             [edges['x1'], edges['y1'], edges['x2'], edges['y2'], edges['magnitude']], 1

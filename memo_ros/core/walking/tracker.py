@@ -1,16 +1,16 @@
-"""Rohr's MEMO walker (§4-6) over an image sequence: initialization, then incremental Kalman estimation.
+"""Rohr's MEMO walker (§4-6) over an image sequence.
 
-Feed :meth:`WalkingTracker.step` every frame's stamp, the person's enclosing
-rectangle (or None) and the edge lines.  Images are numbered from the first
-rectangle by their stamps.  Initialization (images ``init_first``..
-``init_last``, Rohr's 2-14): per image the rectangle gives a 3D position (eq.
-2-6) and a grid search over the whole cycle and X, Y around it gives a single
-estimate; at the end the two-lines rule and linear regression give the starting
-state.  Tracking: the Kalman prediction (eq. 14, 15) centres a grid search
-whose half-widths are ``window_sigmas`` standard deviations of the predicted
-covariance (at least one grid step, at most the paper's intervals), and the
-best grid point is the measurement (eq. 16-18).  The rectangle is not needed
-while tracking (Rohr §6: no change detection then).
+Initialization, then incremental Kalman estimation.
+
+Feed :meth:`WalkingTracker.step` every frame's stamp, the person's enclosing rectangle (or None)
+and the edge lines.  Images are numbered from the first rectangle by their stamps.  Initialization
+(images ``init_first``.. ``init_last``, Rohr's 2-14): per image the rectangle gives a 3D position
+(eq. 2-6) and a grid search over the whole cycle and X, Y around it gives a single estimate; at the
+end the two-lines rule and linear regression give the starting state.  Tracking: the Kalman
+prediction (eq. 14, 15) centres a grid search whose half-widths are ``window_sigmas`` standard
+deviations of the predicted covariance (at least one grid step, at most the paper's intervals), and
+the best grid point is the measurement (eq. 16-18).  The rectangle is not needed while tracking
+(Rohr §6: no change detection then).
 """
 
 from __future__ import annotations
@@ -116,7 +116,10 @@ class WalkingTracker:
         return 1.0 + round((stamp_ns - self.first_stamp) * 1e-9 * self.settings.frame_rate)
 
     def step(self, stamp_ns: int, box_corners, edges) -> StepResult:
-        """Process one frame: ``box_corners`` (4, 2) pixels or None, ``edges`` EDGE_DTYPE or (E, 5)."""
+        """Process one frame.
+
+        ``box_corners`` (4, 2) pixels or None, ``edges`` EDGE_DTYPE or (E, 5).
+        """
         edges = edge_table(edges)
         if self.state == TRACKING:
             return self._track(stamp_ns, edges)

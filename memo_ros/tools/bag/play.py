@@ -71,11 +71,12 @@ MessageHook = Callable[[PlayedMessage], None]
 
 
 class BagPlayer:
-    """Publishes the serialized messages of a rosbag2 on ``node`` with the recorded timing (or faster).
+    """Publishes the serialized messages of a rosbag2 on ``node`` with the recorded timing.
 
-    ``before_publish`` may block, e.g. for back-pressure: the playback clock
-    stands still while it runs, so the timing after it is kept.
-    ``after_publish`` sees every message once it is sent.
+    Or faster.
+
+    ``before_publish`` may block, e.g. for back-pressure: the playback clock stands still while it
+    runs, so the timing after it is kept. ``after_publish`` sees every message once it is sent.
     """
 
     def __init__(
@@ -114,7 +115,10 @@ class BagPlayer:
             raise BagError('QoS depth must be at least 1')
 
     def _select_connections(self) -> list[Connection]:
-        """Return the bag's connections on the requested topics (an error names requested topics the bag lacks)."""
+        """Return the bag's connections on the requested topics.
+
+        An error names requested topics the bag lacks.
+        """
         connections = self.reader.connections
         if self.options.topics is not None:
             wanted = {absolute_topic(t) for t in self.options.topics}
@@ -128,7 +132,10 @@ class BagPlayer:
         return connections
 
     def _create_publishers(self) -> tuple[dict[int, object], dict[str, str]]:
-        """Return a publisher per published topic, keyed by connection id; and published topic -> type."""
+        """Return a publisher per published topic, keyed by connection id.
+
+        And published topic -> type.
+        """
         qos = qos_profile(
             self.options.reliability, self.options.qos_depth, self.options.durability
         )
@@ -176,7 +183,10 @@ class BagPlayer:
     def wait_for_subscribers(
         self, stop: threading.Event | None = None, period: float = 0.02
     ) -> list[str]:
-        """Wait until every publisher has its subscribers; the topics still lacking them on timeout or stop."""
+        """Wait until every publisher has its subscribers.
+
+        The topics still lacking them on timeout or stop.
+        """
         stop = stop or threading.Event()
         timeout = self.options.wait_timeout
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -228,7 +238,10 @@ class BagPlayer:
         return count
 
     def play(self, stop: threading.Event | None = None) -> int:
-        """Play the bag (repeatedly with ``loop``) until done or ``stop`` is set; the number of messages published."""
+        """Play the bag (repeatedly with ``loop``) until done or ``stop`` is set.
+
+        The number of messages published.
+        """
         stop = stop or threading.Event()
         total = 0
         while not stop.is_set():
@@ -239,7 +252,10 @@ class BagPlayer:
         return total
 
     def flush(self, timeout: float = 5.0) -> bool:
-        """Wait until reliable subscribers acknowledged everything published (so exiting loses nothing)."""
+        """Wait until reliable subscribers acknowledged everything published.
+
+        So exiting loses nothing.
+        """
         deadline = time.monotonic() + timeout
         ok = True
         for publisher in {id(p): p for p in self.publishers.values()}.values():
@@ -302,13 +318,15 @@ def run_play(args: argparse.Namespace) -> int:
 
             def show(item: PlayedMessage) -> None:
                 status.show(
-                    f'playing: {(item.log_time_ns - player.start_ns) / 1e9:7.2f} / {duration:.2f} s, '
+                    f'playing: {(item.log_time_ns - player.start_ns) / 1e9:7.2f} / '
+                    f'{duration:.2f} s, '
                     f'{item.index + 1} messages'
                 )
 
             player.after_publish = show
             print(
-                f'playing {sum(c.msgcount for c in player.connections)} messages on {len(player.topics)} '
+                f'playing {sum(c.msgcount for c in player.connections)} messages on '
+                f'{len(player.topics)} '
                 f'topics from {args.bag}',
                 file=sys.stderr,
             )

@@ -75,7 +75,10 @@ def rosbags_qos(profile) -> Qos:
 
 
 def is_hidden(topic: str) -> bool:
-    """Return True for hidden topics (a name component starting with '_'), which --all leaves out like ros2 bag."""
+    """Return True for hidden topics (a name component starting with '_').
+
+    Which --all leaves out like ros2 bag.
+    """
     return any(part.startswith('_') for part in topic.split('/'))
 
 
@@ -94,10 +97,12 @@ class RecordOptions:
 
 
 class BagRecorder:
-    """Raw subscriptions on ``node`` whose received bytes go into a rosbag2, stamped with their receive time.
+    """Raw subscriptions on ``node`` whose received bytes go into a rosbag2.
 
-    Call :meth:`discover` periodically: it subscribes to requested topics as they
-    appear in the graph (with ``all_topics``, to every new topic).
+    Stamped with their receive time.
+
+    Call :meth:`discover` periodically: it subscribes to requested topics as they appear in the
+    graph (with ``all_topics``, to every new topic).
     """
 
     def __init__(
@@ -172,12 +177,18 @@ class BagRecorder:
         return added
 
     def _subscribe(self, topic: str, types: list[str]) -> str | None:
-        """Subscribe raw to ``topic`` and register it in the bag; why not, when it cannot be recorded."""
+        """Subscribe raw to ``topic`` and register it in the bag.
+
+        Why not, when it cannot be recorded.
+        """
         if len(types) != 1:
             return f'it carries several types ({", ".join(types)})'
         msgtype = types[0]
         if msgtype not in TYPESTORE.types:
-            return f'type {msgtype} is unknown to the Jazzy type store (no message definition to store)'
+            return (
+                f'type {msgtype} is unknown to the Jazzy type store (no message definition to '
+                'store)'
+            )
         try:
             msg_class = import_message_type(msgtype)
         except MessageTypeError as exc:

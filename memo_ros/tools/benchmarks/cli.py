@@ -28,7 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'contour-node = the contour_node process fed at 30 and 60 Hz over DDS; '
         'selector = camera assignment per frame, 14 parts x 3 cameras (--repeat: passes over '
         'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
-        "5,000 contour points per camera (--repeat: passes over the sequence); walker = Rohr's walker per "
+        "5,000 contour points per camera (--repeat: passes over the sequence); walker = Rohr's "
+        'walker per '
         "frame on a street-walk, initialization and tracking, against the paper's exhaustive grid "
         '(--repeat: passes over the sequence); graph = the whole live graph (3 contour nodes, '
         'selector, tracker) fed a 3-camera 640x480 bag at 30 and 60 Hz: latency per stage and end '

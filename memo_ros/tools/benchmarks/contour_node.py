@@ -1,16 +1,16 @@
-"""Sustained throughput of contour_node as its own process, fed a bag over real DDS at 30 and 60 Hz.
+"""Sustained throughput of contour_node as its own process.
 
-A studio-walk bag (640x480, mono8, 30 frames/s) is simulated once.  For each
-case a fresh ``contour_node`` process is started on ``/cam_front``; this
-process subscribes its ``contours`` and ``/diagnostics``, waits until the
-node's subscriptions have matched, then plays only ``/cam_front/image_raw``
-and ``/cam_front/camera_info`` with :class:`BagPlayer` at rate 1 (30 Hz) or
-2 (60 Hz).  Cases: reliable images (bag replay) and best-effort images (the
-live case).  Figures per case: frames published, contours received, the
-node's last diagnostics (processed, frames_in, dropped by reason,
-last_frame_ms), the sustained output rate and inter-arrival times, the node's
-CPU use over the playback (from /proc/<pid>/stat) and its peak RSS (VmHWM).
-Stamps are simulated, so no end-to-end latency is reported.
+Fed a bag over real DDS at 30 and 60 Hz.
+
+A studio-walk bag (640x480, mono8, 30 frames/s) is simulated once.  For each case a fresh
+``contour_node`` process is started on ``/cam_front``; this process subscribes its ``contours`` and
+``/diagnostics``, waits until the node's subscriptions have matched, then plays only
+``/cam_front/image_raw`` and ``/cam_front/camera_info`` with :class:`BagPlayer` at rate 1 (30 Hz)
+or 2 (60 Hz).  Cases: reliable images (bag replay) and best-effort images (the live case).  Figures
+per case: frames published, contours received, the node's last diagnostics (processed, frames_in,
+dropped by reason, last_frame_ms), the sustained output rate and inter-arrival times, the node's
+CPU use over the playback (from /proc/<pid>/stat) and its peak RSS (VmHWM). Stamps are simulated,
+so no end-to-end latency is reported.
 """
 
 from __future__ import annotations
@@ -249,7 +249,10 @@ def _figures(
 
 
 def run_node_benchmark(frames: int = FRAMES, cases=CASES, domain_id: int | None = None) -> dict:
-    """Simulate the bag once, then run every (image reliability, play rate) case against a fresh node."""
+    """Simulate the bag once.
+
+    Then run every (image reliability, play rate) case against a fresh node.
+    """
     from memo_ros.core.simulation.imaging import ImagingOptions
     from memo_ros.tools.simulate import simulate
 
@@ -300,7 +303,8 @@ def print_node_benchmark(report: dict) -> None:
     print()
     print(
         f'{"images":<12} {"in Hz":>5} {"pub":>4} {"in/s":>5} {"recv":>5} {"f_in":>5} {"proc":>5} '
-        f'{"out/s":>6} {"gap med/p90/max ms":>20} {"last ms":>7} {"CPU %":>6} {"CPU ms/f":>8} {"RSS MB":>7}  '
+        f'{"out/s":>6} {"gap med/p90/max ms":>20} {"last ms":>7} {"CPU %":>6} {"CPU ms/f":>8} '
+        f'{"RSS MB":>7}  '
         f'dropped'
     )
     for r in report['cases']:
@@ -310,7 +314,8 @@ def print_node_benchmark(report: dict) -> None:
             ', '.join(f'{k} {v}' for k, v in r['dropped'].items() if k != 'total' and v) or 'none'
         )
         print(
-            f'{r["images"]:<12} {r["input_hz"]:>5.0f} {r["frames_published"]:>4} {f(r["input_frames_per_s"]):>5} '
+            f'{r["images"]:<12} {r["input_hz"]:>5.0f} {r["frames_published"]:>4} '
+            f'{f(r["input_frames_per_s"]):>5} '
             f'{r["contours_received"]:>5} {f(r["frames_in"], "d"):>5} {f(r["processed"], "d"):>5} '
             f'{f(r["output_frames_per_s"]):>6} {gap:>20} {f(r["last_frame_ms"], ".2f"):>7} '
             f'{f(r["node_cpu_pct"]):>6} {f(r["node_cpu_ms_per_frame"], ".2f"):>8} '
@@ -318,7 +323,9 @@ def print_node_benchmark(report: dict) -> None:
         )
     print()
     print(
-        "pub = images published, recv = contours received, f_in/proc = the node's frames_in/processed; "
-        'out/s = (recv - 1) / (last - first arrival); CPU = node utime+stime from play start to the last '
+        "pub = images published, recv = contours received, f_in/proc = the node's "
+        'frames_in/processed; '
+        'out/s = (recv - 1) / (last - first arrival); CPU = node utime+stime from play start to '
+        'the last '
         'arrival; images lost before the node (best effort) show as pub - f_in'
     )

@@ -48,7 +48,10 @@ def _frames(bag: Path) -> list[tuple]:
 def _time_pipeline(
     frames: list[tuple], settings: dict, warmup: int, repeat: int
 ) -> dict[str, np.ndarray]:
-    """Milliseconds per stage and in total for every timed frame (``repeat`` passes, history reset between)."""
+    """Milliseconds per stage and in total for every timed frame.
+
+    ``repeat`` passes, history reset between.
+    """
     clock = time.perf_counter
     times = {stage: [] for stage in STAGES + ('total',)}
     pipeline = ContourPipeline(**settings)
@@ -72,7 +75,10 @@ def _time_pipeline(
 def run_contour_benchmark(
     repeat: int = 1, frames: int = TIMED_FRAMES, workdir: Path | None = None
 ) -> dict:
-    """Time the pipeline per encoding and segmenter on a simulated 640x480 studio-walk; a JSON-ready dict."""
+    """Time the pipeline per encoding and segmenter on a simulated 640x480 studio-walk.
+
+    a JSON-ready dict.
+    """
     from memo_ros.tools.simulate import simulate
 
     if repeat < 1:
@@ -124,7 +130,10 @@ def run_contour_benchmark(
 
 
 def print_contour_benchmark(report: dict) -> None:
-    """Return the benchmark as a table: one row per encoding x segmenter, median (p90) ms per stage."""
+    """Return the benchmark as a table.
+
+    One row per encoding x segmenter, median (p90) ms per stage.
+    """
     width, height = report['size']
     print(
         f'contour pipeline, {report["scenario"]} {report["camera"]} {width}x{height}, '

@@ -39,7 +39,10 @@ SIM_STAGES = {
 
 
 def benchmark_poses(body) -> dict[str, np.ndarray]:
-    """Return a walking pose (mid-stride on the studio's arc) and an arm pose (arm raised, elbow bent)."""
+    """Return a walking pose (mid-stride on the studio's arc) and an arm pose.
+
+    Arm raised, elbow bent.
+    """
     from memo_ros.core.simulation.scenarios import make_scenario
 
     walk, _ = make_scenario('studio-walk', body).coordinates(np.array([0.35]))
@@ -185,7 +188,8 @@ def print_report(report: dict) -> None:
     m = report['machine']
     print(f'command  {report["command"]}')
     print(
-        f'machine  {m["cpu_count"]} CPUs ({m["cpus_usable"]} usable), {m["processor"]}, Python {m["python"]}, '
+        f'machine  {m["cpu_count"]} CPUs ({m["cpus_usable"]} usable), {m["processor"]}, Python '
+        f'{m["python"]}, '
         f'numpy {m["numpy"]}, OpenCV {m["opencv"]}, {m["platform"]}'
     )
     print()
@@ -199,7 +203,8 @@ def print_report(report: dict) -> None:
     print()
     print(
         f'simulate {s["scenario"]} {s["size"]}: {s["frames"]} frames x {s["cameras"]} cameras in '
-        f'{s["seconds"]:.2f} s = {s["frames_per_s"]:.1f} frames/s, {s["camera_frames_per_s"]:.1f} camera-frames/s, '
+        f'{s["seconds"]:.2f} s = {s["frames_per_s"]:.1f} frames/s, '
+        f'{s["camera_frames_per_s"]:.1f} camera-frames/s, '
         f'bag {s["bag_mb"]:.1f} MB'
     )
     for stage, ms in s['stage_ms_per_camera_frame'].items():

@@ -1,23 +1,22 @@
-"""Latency and throughput of the whole live graph fed a 3-camera studio bag at fixed rates (``benchmark graph``).
+"""Latency and throughput of the whole live graph fed a 3-camera studio bag at fixed rates.
 
-A studio-arm bag (3 cameras, 640x480 mono8) is simulated once into a
-temporary directory (or given with ``--bag``).  For each rate a fresh graph
-is started as users start it, ``memo-ros launch STUDIO`` (one contour_node
-per camera, selector_node, tracker_node, each its own process), with
-best-effort images as from live cameras.  This process plays the bag's
-``/<cam>/image_raw`` (best effort) and ``/<cam>/camera_info`` (reliable) with
-:class:`BagPlayer` at the rate (with a Fast DDS shared-memory segment large
-enough for all cameras, see memo_ros.ros.dds.player_segment), and restamps every frame to the
-wall clock at the moment its first message goes out (all messages of a frame
-share the stamp).  Every output carries its frame's stamp, so a stage's cumulative
-latency is the output's publication time (its DDS source timestamp) minus the
-stamp: ``/<cam>/contours``, ``/memo/camera_assignment``, ``/memo/joint_states``
-(end to end) and ``/memo/processed`` (every frame the tracker finished, with
-its outcome).  The first frames (the empty studio the contour nodes learn
-their background from, and the tracker's start) are warm-up and left out of
-the statistics; CPU is measured over the timed frames from /proc, peak RSS is
-each process's VmHWM.  Frames without joint_states are counted by reason,
-and the nodes' own drop counters come from ``/diagnostics``.
+``benchmark graph``.
+
+A studio-arm bag (3 cameras, 640x480 mono8) is simulated once into a temporary directory (or given
+with ``--bag``).  For each rate a fresh graph is started as users start it, ``memo-ros launch
+STUDIO`` (one contour_node per camera, selector_node, tracker_node, each its own process), with
+best-effort images as from live cameras.  This process plays the bag's ``/<cam>/image_raw`` (best
+effort) and ``/<cam>/camera_info`` (reliable) with :class:`BagPlayer` at the rate (with a Fast DDS
+shared-memory segment large enough for all cameras, see memo_ros.ros.dds.player_segment), and
+restamps every frame to the wall clock at the moment its first message goes out (all messages of a
+frame share the stamp).  Every output carries its frame's stamp, so a stage's cumulative latency is
+the output's publication time (its DDS source timestamp) minus the stamp: ``/<cam>/contours``,
+``/memo/camera_assignment``, ``/memo/joint_states`` (end to end) and ``/memo/processed`` (every
+frame the tracker finished, with its outcome).  The first frames (the empty studio the contour
+nodes learn their background from, and the tracker's start) are warm-up and left out of the
+statistics; CPU is measured over the timed frames from /proc, peak RSS is each process's VmHWM.
+Frames without joint_states are counted by reason, and the nodes' own drop counters come from
+``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -156,7 +155,10 @@ def run_rate(
     log: Path,
     loops: int = 1,
 ) -> dict:
-    """Launch a fresh graph, play the bag into it ``loops`` times at ``rate_hz`` frames/s, and measure it."""
+    """Launch a fresh graph, play the bag into it ``loops`` times at ``rate_hz`` frames/s.
+
+    And measure it.
+    """
     from memo_ros.ros.dds import ros_session
     from memo_ros.tools.bag.play import BagPlayer, PlayOptions
     from memo_ros.tools.cli import CliError
@@ -264,7 +266,10 @@ def _play_passes(player, stop: threading.Event, passes: int) -> None:
 def _wait_for_graph(
     node, executor, players, probe: Probe, labels: set[str], launch, log: Path
 ) -> None:
-    """Until the players' topics have their subscribers, the probe its publishers, and every node reported."""
+    """Until the players' topics have their subscribers, the probe its publishers.
+
+    And every node reported.
+    """
     from memo_ros.tools.cli import CliError
 
     deadline = time.monotonic() + GRAPH_TIMEOUT
@@ -278,7 +283,8 @@ def _wait_for_graph(
             raise CliError(f'the graph stopped before it was up: {log_tail(log)}')
         if time.monotonic() > deadline:
             raise CliError(
-                f'the graph did not come up within {GRAPH_TIMEOUT:g} s; missing: {", ".join(missing)}'
+                f'the graph did not come up within {GRAPH_TIMEOUT:g} s; missing: '
+                f'{", ".join(missing)}'
             )
         executor.spin_once(timeout_sec=0.05)
 

@@ -1,4 +1,7 @@
-"""The graph benchmark's figures: latency per stage and end to end, drops by reason, CPU per frame, the table."""
+"""The graph benchmark's figures.
+
+Latency per stage and end to end, drops by reason, CPU per frame, the table.
+"""
 
 from __future__ import annotations
 
@@ -139,8 +142,9 @@ def rate_figures(
 
 
 def _frames_handled(timed: list[FrameTrace], cameras: list[str]) -> dict[str, int]:
-    """Time frames each node worked on: contours published, assignments published, frames tracked (not
-    skipped or late).
+    """Time frames each node worked on.
+
+    Contours published, assignments published, frames tracked (not skipped or late).
     """
     handled = {f'{c}/contour_node': sum(c in t.contours for t in timed) for c in cameras}
     handled['selector_node'] = sum(t.assignment is not None for t in timed)
@@ -155,8 +159,10 @@ def _process_figures(
     handled: dict[str, int],
     frame_ms: dict[str, list[tuple[float, float]]],
 ) -> list[dict]:
-    """Per process: CPU % over the timed frames (first timed frame published to the last one the tracker
-    finished) and while idle before playback, CPU per frame handled, the median of the frame times the node
+    """Per process.
+
+    CPU % over the timed frames (first timed frame published to the last one the tracker finished)
+    and while idle before playback, CPU per frame handled, the median of the frame times the node
     reported on /diagnostics during the timed frames (wall time of one frame's work), peak RSS.
     """
     rows = []
@@ -213,7 +219,10 @@ def _node_figures(
 
 
 def target_check(r: dict) -> dict | None:
-    """Return the issue's target for this rate, and whether this run met it (None for rates without one)."""
+    """Return the issue's target for this rate, and whether this run met it.
+
+    None for rates without one.
+    """
     target = TARGETS.get(r['rate_hz'])
     if target is None or not r['timed_frames']:
         return None
@@ -235,27 +244,35 @@ def _p(stats: dict | None) -> str:
 
 
 def print_graph_benchmark(report: dict) -> None:
-    """Per rate: latencies, rates, drops; then per process CPU and memory; then the nodes' drop counters."""
+    """Per rate.
+
+    Latencies, rates, drops; then per process CPU and memory; then the nodes' drop counters.
+    """
     rows = report['rates']
     print(
         f'graph: {report["scenario"]} ({report["bag"]}), {len(report["cameras"])} cameras '
         f'{report["size"]}, {report["bag_frames"]} frames recorded at {report["bag_hz"]:.0f} Hz; '
-        f'`memo-ros launch STUDIO`, best-effort images (as from live cameras); ROS_DOMAIN_ID {report["domain_id"]}'
+        '`memo-ros launch STUDIO`, best-effort images (as from live cameras); ROS_DOMAIN_ID '
+        f'{report["domain_id"]}'
     )
     print(
-        f'every frame restamped to the wall clock when it goes out; latency = output publication (DDS source '
-        f'timestamp) - stamp; the first {report["warmup_frames"]} frames are warm-up (background learning, '
+        'every frame restamped to the wall clock when it goes out; latency = output publication '
+        '(DDS source '
+        f'timestamp) - stamp; the first {report["warmup_frames"]} frames are warm-up (background '
+        'learning, '
         f'tracker start), not counted'
     )
     if report.get('player_shm_segment_mb'):
         print(
-            f'the player (this process, all cameras) has a {report["player_shm_segment_mb"]:.0f} MiB Fast DDS '
+            f'the player (this process, all cameras) has a {report["player_shm_segment_mb"]:.0f} '
+            'MiB Fast DDS '
             f'shared-memory segment, as separate camera drivers would have between them'
         )
     print()
     print(
         f'{"rate":>5} {"in/s":>5} {"out/s":>6} {"out/timed":>10} {"drop %":>6}  '
-        f'{"contours":>11} {"selector":>11} {"tracker":>11} {"end to end":>11} {"drift":>6}  target'
+        f'{"contours":>11} {"selector":>11} {"tracker":>11} {"end to end":>11} {"drift":>6}  '
+        'target'
     )
     print(
         f'{"Hz":>5} {"":>5} {"":>6} {"":>10} {"":>6}  {"p50/p99 ms":>11} {"p50/p99 ms":>11} '
@@ -277,16 +294,20 @@ def print_graph_benchmark(report: dict) -> None:
         )
     print()
     print(
-        "contours = publication of the last of the cameras' contours; selector = the assignment (it starts on "
-        'camera_info, beside the contour nodes); tracker = joint_states after the later of the two; end to end = '
-        'joint_states; drift = median end to end of the last tenth of the frames - of the first tenth'
+        "contours = publication of the last of the cameras' contours; selector = the assignment "
+        '(it starts on '
+        'camera_info, beside the contour nodes); tracker = joint_states after the later of the '
+        'two; end to end = '
+        'joint_states; drift = median end to end of the last tenth of the frames - of the first '
+        'tenth'
     )
     print()
     for r in rows:
         drops = ', '.join(f'{n} {reason}' for reason, n in r['drops'].items()) or 'none'
         missing = ', '.join(f'{c} {n}' for c, n in r['contours_missing'].items() if n) or 'none'
         print(
-            f'{r["rate_hz"]:.0f} Hz: frames without joint_states: {drops}; contours missing: {missing}'
+            f'{r["rate_hz"]:.0f} Hz: frames without joint_states: {drops}; contours missing: '
+            f'{missing}'
         )
     print()
     labels = list(dict.fromkeys(p['process'] for r in rows for p in r['processes']))
@@ -315,21 +336,26 @@ def print_graph_benchmark(report: dict) -> None:
         if r['nodes_cpu_ms_per_frame'] is not None:
             need = r['nodes_cpu_ms_per_frame'] * r['rate_hz'] / 1000.0
             print(
-                f'{r["rate_hz"]:.0f} Hz: one frame through every node costs {r["nodes_cpu_ms_per_frame"]:.1f} ms '
+                f'{r["rate_hz"]:.0f} Hz: one frame through every node costs '
+                f'{r["nodes_cpu_ms_per_frame"]:.1f} ms '
                 f'of CPU (sum of CPU ms/f), so {r["rate_hz"]:.0f} frames/s need {need:.2f} cores '
                 f'({report.get("cpus", "?")} here)'
             )
     print(
-        'CPU % of one core, from the first timed frame to the last frame the tracker finished; idle % = the graph up '
-        f'and fed nothing ({SETTLE:g} s before playback); CPU ms/f = CPU time per frame the node worked on '
-        '(tracker: tracked, not skipped); frame ms = median of the per-frame work time the node reports on '
+        'CPU % of one core, from the first timed frame to the last frame the tracker finished; '
+        'idle % = the graph up '
+        f'and fed nothing ({SETTLE:g} s before playback); CPU ms/f = CPU time per frame the node '
+        'worked on '
+        '(tracker: tracked, not skipped); frame ms = median of the per-frame work time the node '
+        'reports on '
         '/diagnostics (once a second); RSS = peak (VmHWM)'
     )
     for r in rows:
         growth = [m for m in r.get('memory', []) if m['growth_mb'] is not None]
         if growth:
             print(
-                f'{r["rate_hz"]:.0f} Hz, bag played {r.get("loops", 1)}x: resident memory warm -> end (growth), MB: '
+                f'{r["rate_hz"]:.0f} Hz, bag played {r.get("loops", 1)}x: resident memory warm '
+                '-> end (growth), MB: '
                 + ', '.join(
                     f'{m["process"]} {m["rss_warm_mb"]:.0f} -> {m["rss_end_mb"]:.0f} '
                     f'({m["growth_mb"]:+.1f})'

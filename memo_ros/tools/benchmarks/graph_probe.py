@@ -25,7 +25,10 @@ def header_stamp_ns(cdr: bytes) -> int:
 
 
 def restamped(cdr: bytes, stamp_ns: int) -> bytes:
-    """Return the serialized message with its header stamp replaced (the stamp follows the 4-byte encapsulation)."""
+    """Return the serialized message with its header stamp replaced.
+
+    The stamp follows the 4-byte encapsulation.
+    """
     endian = '<' if cdr[1] & 1 else '>'
     sec, nanosec = divmod(stamp_ns, 1_000_000_000)
     return cdr[:4] + struct.pack(endian + 'iI', sec, nanosec) + cdr[12:]
@@ -33,7 +36,10 @@ def restamped(cdr: bytes, stamp_ns: int) -> bytes:
 
 @dataclass
 class FrameTrace:
-    """One frame as it went through the graph: its stamp and the publication time (ns) of each output."""
+    """One frame as it went through the graph.
+
+    Its stamp and the publication time (ns) of each output.
+    """
 
     index: int  # frame of the bag, from 0
     stamp: int  # wall clock when its first message went out
@@ -45,10 +51,12 @@ class FrameTrace:
 
 
 class Restamper:
-    """BagPlayer hook: each frame (a bag stamp) gets the wall-clock time when its first message goes out.
+    """BagPlayer hook.
 
-    Both players (images and camera_info) call it from their own threads; a frame's later
-    messages get the same stamp, so the frame keeps one stamp through the whole graph.
+    Each frame (a bag stamp) gets the wall-clock time when its first message goes out.
+
+    Both players (images and camera_info) call it from their own threads; a frame's later messages
+    get the same stamp, so the frame keeps one stamp through the whole graph.
     """
 
     def __init__(self, on_frame=None) -> None:

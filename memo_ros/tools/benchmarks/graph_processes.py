@@ -26,7 +26,10 @@ STOP_TIMEOUT = 15.0  # s for the launcher to stop its nodes after SIGINT
 
 
 def node_label(command: list[str]) -> str:
-    """'cam_front/contour_node', 'selector_node', ...: the launcher's label of a node's command line."""
+    """'cam_front/contour_node', 'selector_node', ....
+
+    The launcher's label of a node's command line.
+    """
     module = command[command.index('-m') + 1] if '-m' in command else Path(command[0]).name
     name = module.rsplit('.', 1)[-1]
     namespace = next(
@@ -69,7 +72,10 @@ def wait_for_nodes(launch: subprocess.Popen, expected: int, log: Path) -> dict[i
 
 
 def stop_graph(launch: subprocess.Popen, nodes: dict[int, str]) -> None:
-    """SIGINT to the launcher (it stops its nodes); kill it, then any node of it left, on a timeout."""
+    """SIGINT to the launcher (it stops its nodes).
+
+    Kill it, then any node of it left, on a timeout.
+    """
     nodes = nodes or (
         children(launch.pid) if launch.poll() is None else {}
     )  # stopped while starting
@@ -109,8 +115,10 @@ def rss_of(pids: dict[int, str]) -> dict[int, float | None]:
 def memory_growth(
     pids: dict[int, str], samples: list[tuple[int, dict]], warmup: int
 ) -> list[dict]:
-    """Per process: resident memory once warm (the first sample after the warm-up frames and a tenth of
-    the run), at the end, and the growth between them, MB.
+    """Per process.
+
+    Resident memory once warm (the first sample after the warm-up frames and a tenth of the run),
+    at the end, and the growth between them, MB.
     """
     rows = []
     total = samples[-1][0] if samples else 0

@@ -1,4 +1,7 @@
-"""What every benchmark report shares: the machine it ran on, timing and percentiles, the command line."""
+"""What every benchmark report shares.
+
+The machine it ran on, timing and percentiles, the command line.
+"""
 
 from __future__ import annotations
 

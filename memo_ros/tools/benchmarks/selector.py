@@ -1,11 +1,12 @@
-"""Per-frame cost of the camera selection (Kakadiaris §4): 14 parts x 3 cameras at the default label resolution.
+"""Per-frame cost of the camera selection (Kakadiaris §4).
 
-For every frame of a simulated sequence (the truth as the posterior of t-1), the
-selector node's work is timed: the constant-velocity prediction to t, then
-:meth:`CameraSelector.assign` (one label rendering per camera, visibility
-indices, occluding-contour nodes, observability, ranking), and separately the
-conversion to the ``/memo/camera_assignment`` message.  Wall-clock
-milliseconds per frame: median and 90th percentile.
+14 parts x 3 cameras at the default label resolution.
+
+For every frame of a simulated sequence (the truth as the posterior of t-1), the selector node's
+work is timed: the constant-velocity prediction to t, then :meth:`CameraSelector.assign` (one label
+rendering per camera, visibility indices, occluding-contour nodes, observability, ranking), and
+separately the conversion to the ``/memo/camera_assignment`` message.  Wall-clock milliseconds per
+frame: median and 90th percentile.
 """
 
 from __future__ import annotations
@@ -25,7 +26,10 @@ TARGET_MS = 5.0
 
 
 def _time_sequence(scenario_name: str, settings: SelectionSettings, repeat: int) -> dict:
-    """Milliseconds per frame of prediction + assignment, and of the message, over ``repeat`` passes."""
+    """Milliseconds per frame of prediction + assignment, and of the message.
+
+    Over ``repeat`` passes.
+    """
     from memo_ros.ros.assignment_messages import assignment_to_message
 
     body = load_default_body()
@@ -88,21 +92,27 @@ def print_selector_benchmark(report: dict) -> None:
     """One row per scenario: frames, median (p90, max) ms per frame of prediction + assignment."""
     width, height = report['size']
     print(
-        f'camera selection per frame, {width}x{height} cameras, render_scale {report["render_scale"]}, '
-        f'{report["observability_norm"]}, at most {report["max_cameras_per_part"]} cameras per part; '
+        f'camera selection per frame, {width}x{height} cameras, render_scale '
+        f'{report["render_scale"]}, '
+        f'{report["observability_norm"]}, at most {report["max_cameras_per_part"]} cameras per '
+        'part; '
         f'target {report["target_ms"]:.0f} ms'
     )
     print(
-        f'{"scenario":12} {"frames":>6} {"parts x cams":>12} {"labels":>8} {"median ms":>10} {"p90 ms":>8} '
+        f'{"scenario":12} {"frames":>6} {"parts x cams":>12} {"labels":>8} {"median ms":>10} '
+        f'{"p90 ms":>8} '
         f'{"max ms":>8} {"message ms":>10} {"cams/part":>9}'
     )
     for c in report['cases']:
         print(
-            f'{c["scenario"]:12} {c["frames"]:6d} {c["parts"]:>9d} x{c["cameras"]:<2d} {c["label_size"]:>8} '
-            f'{c["median_ms"]:10.2f} {c["p90_ms"]:8.2f} {c["max_ms"]:8.2f} {c["message_median_ms"]:10.2f} '
+            f'{c["scenario"]:12} {c["frames"]:6d} {c["parts"]:>9d} x{c["cameras"]:<2d} '
+            f'{c["label_size"]:>8} '
+            f'{c["median_ms"]:10.2f} {c["p90_ms"]:8.2f} {c["max_ms"]:8.2f} '
+            f'{c["message_median_ms"]:10.2f} '
             f'{c["cameras_per_part"]:9.2f}'
         )
     print(
-        'ms: prediction + assignment (label rendering, VI, contour nodes, observability, ranking); '
+        'ms: prediction + assignment (label rendering, VI, contour nodes, observability, '
+        'ranking); '
         'message: building the DiagnosticArray'
     )

@@ -1,12 +1,13 @@
-"""Per-frame cost of the articulated tracker's update: 14 parts, 3 cameras, 200 / 1,000 / 5,000 contour points each.
+"""Per-frame cost of the articulated tracker's update.
 
-The contours are perfect silhouettes of the simulated studio-arm sequence,
-resampled so every camera has the wanted number of samples; each frame is one
-:meth:`ArticulatedTracker.step` (prediction, the candidates' outline tests, force
-assignment and the iterated EKF update), timed in this process.  The nodes run
-numpy's BLAS on one thread (memo_ros/nodes/__init__.py); this command keeps the
-environment's setting, so ``OPENBLAS_NUM_THREADS=1`` measures what the tracker
-node does on one core, and the report says which it was.
+14 parts, 3 cameras, 200 / 1,000 / 5,000 contour points each.
+
+The contours are perfect silhouettes of the simulated studio-arm sequence, resampled so every
+camera has the wanted number of samples; each frame is one :meth:`ArticulatedTracker.step`
+(prediction, the candidates' outline tests, force assignment and the iterated EKF update), timed in
+this process.  The nodes run numpy's BLAS on one thread (memo_ros/nodes/__init__.py); this command
+keeps the environment's setting, so ``OPENBLAS_NUM_THREADS=1`` measures what the tracker node does
+on one core, and the report says which it was.
 """
 
 from __future__ import annotations
@@ -94,13 +95,15 @@ def print_tracker_benchmark(report: dict) -> None:
     """One row per contour density."""
     print(
         f'tracker update per frame, {report["parts"]} parts x {report["cameras"]} cameras, '
-        f'BLAS threads {report["blas_threads"]}; target {report["target_ms"]:.0f} ms at 1,000 points per camera'
+        f'BLAS threads {report["blas_threads"]}; target {report["target_ms"]:.0f} ms at 1,000 '
+        'points per camera'
     )
     print(
         f'{"points/camera":>13} {"frames":>6} {"median ms":>10} {"p90 ms":>8} {"iterations":>10}'
     )
     for c in report['cases']:
         print(
-            f'{c["points_actual"]:>13} {c["frames"]:>6} {c["median_ms"]:>10.2f} {c["p90_ms"]:>8.2f} '
+            f'{c["points_actual"]:>13} {c["frames"]:>6} {c["median_ms"]:>10.2f} '
+            f'{c["p90_ms"]:>8.2f} '
             f'{c["iterations_mean"]:>10.1f}'
         )

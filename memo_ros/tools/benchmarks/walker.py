@@ -1,15 +1,15 @@
-"""Cost of Rohr's walker per frame: initialization and tracking, ours against the paper's exhaustive grid.
+"""Cost of Rohr's walker per frame.
 
-A street-walk (640x480, default noise) is simulated once and its frames go
-through the contour pipeline (not timed); then the walker runs over the
-sequence ``repeat`` times from scratch.  Per frame: wall-clock and CPU
-milliseconds (one core: OpenCV single-threaded, numpy without threads),
-model evaluations (grid points scored, s(p) of eq. 11) and visibility
-renderings.  The paper's exhaustive grid renders every grid point: its cost is
-the measured time of one full model evaluation (rendering, hidden-contour
-removal, similarity) times the grid's size, 21 x 11 x 21 points in tracking
-(2 dX = 40 cm, 2 dY = 20 cm, 2 dpose = 0.4 in 2 cm and 0.02 steps) and
-21 x 11 x 50 per initialization image (whole cycle).
+Initialization and tracking, ours against the paper's exhaustive grid.
+
+A street-walk (640x480, default noise) is simulated once and its frames go through the contour
+pipeline (not timed); then the walker runs over the sequence ``repeat`` times from scratch.  Per
+frame: wall-clock and CPU milliseconds (one core: OpenCV single-threaded, numpy without threads),
+model evaluations (grid points scored, s(p) of eq. 11) and visibility renderings.  The paper's
+exhaustive grid renders every grid point: its cost is the measured time of one full model
+evaluation (rendering, hidden-contour removal, similarity) times the grid's size, 21 x 11 x 21
+points in tracking (2 dX = 40 cm, 2 dY = 20 cm, 2 dpose = 0.4 in 2 cm and 0.02 steps) and 21 x 11 x
+50 per initialization image (whole cycle).
 """
 
 from __future__ import annotations
@@ -27,7 +27,10 @@ PAPER_INIT_GRID = 21 * 11 * 50
 
 
 def _frames(bag: Path, studio) -> list[tuple[int, np.ndarray | None, np.ndarray]]:
-    """(stamp, rectangle corners or None, edge lines) of every frame, as contour_node would publish them."""
+    """(stamp, rectangle corners or None, edge lines) of every frame.
+
+    As contour_node would publish them.
+    """
     from memo_ros.core.vision.contours import ContourPipeline
     from memo_ros.nodes.contour_node import pipeline_settings
     from memo_ros.ros.bagio import grey_images
@@ -46,7 +49,10 @@ def _frames(bag: Path, studio) -> list[tuple[int, np.ndarray | None, np.ndarray]
 
 
 def _full_evaluation_ms(studio, frames) -> float:
-    """Median ms of one model evaluation as the paper's grid needs it: render, hidden contours, s(p)."""
+    """Median ms of one model evaluation as the paper's grid needs it.
+
+    Render, hidden contours, s(p).
+    """
     from memo_ros.core.walking.search import WalkerModel
     from memo_ros.core.walking.similarity import candidate_edges, edge_table, similarity
 
@@ -147,19 +153,23 @@ def print_walker_benchmark(report: dict) -> None:
     """Return the figures as a small table."""
     r = report
     print(
-        f'walker on {r["scenario"]} {r["size"]}, {r["frames"]} frames, {r["repeat"]} passes, one core'
+        f'walker on {r["scenario"]} {r["size"]}, {r["frames"]} frames, {r["repeat"]} passes, one '
+        'core'
     )
     print(f'{"phase":<30} {"ms/frame":>10} {"CPU ms":>8} {"evaluations":>12} {"renderings":>11}')
     print(
-        f'{"initialization (per image)":<30} {r["init_ms_per_image"]:>10.1f} {r["init_cpu_ms_per_image"]:>8.1f} '
+        f'{"initialization (per image)":<30} {r["init_ms_per_image"]:>10.1f} '
+        f'{r["init_cpu_ms_per_image"]:>8.1f} '
         f'{r["init_evaluations_per_image"]:>12.0f} {r["init_renderings_per_image"]:>11.1f}'
     )
     print(
-        f'{"tracking median":<30} {r["tracking_ms_median"]:>10.1f} {r["tracking_cpu_ms_median"]:>8.1f} '
+        f'{"tracking median":<30} {r["tracking_ms_median"]:>10.1f} '
+        f'{r["tracking_cpu_ms_median"]:>8.1f} '
         f'{r["tracking_evaluations_median"]:>12.0f} {r["tracking_renderings_mean"]:>11.1f}'
     )
     print(
-        f'{"tracking p90 / max":<30} {r["tracking_ms_p90"]:>10.1f} {r["tracking_cpu_ms_p90"]:>8.1f}   '
+        f'{"tracking p90 / max":<30} {r["tracking_ms_p90"]:>10.1f} '
+        f'{r["tracking_cpu_ms_p90"]:>8.1f}   '
         f'(max {r["tracking_ms_max"]:.1f} ms)'
     )
     print(
