@@ -22,6 +22,7 @@ def _graph(context):
         REPLAY_IMAGE_QUEUE,
         REPLAY_JOIN_TIMEOUT,
         REPLAY_ROI_WAIT,
+        RESPAWN_DELAY_S,
         ROLES,
     )
 
@@ -48,6 +49,8 @@ def _graph(context):
                 else {},
             ],
             output='screen',
+            respawn=True,  # supervised like `memo-ros launch`: a node that dies comes back
+            respawn_delay=RESPAWN_DELAY_S,
         )
         for camera in studio.camera_names
         if role != 'tracking'
@@ -62,6 +65,8 @@ def _graph(context):
                 name='selector_node',
                 parameters=[path],
                 output='screen',
+                respawn=True,
+                respawn_delay=RESPAWN_DELAY_S,
             )
         )
         nodes.append(
@@ -71,6 +76,8 @@ def _graph(context):
                 name='tracker_node',
                 parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path],
                 output='screen',
+                respawn=True,
+                respawn_delay=RESPAWN_DELAY_S,
             )
         )
     if 'walker_node' in studio.node_parameters:
@@ -81,6 +88,8 @@ def _graph(context):
                 name='walker_node',
                 parameters=[path],
                 output='screen',
+                respawn=True,
+                respawn_delay=RESPAWN_DELAY_S,
             )
         )
     return nodes

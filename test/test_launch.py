@@ -1,13 +1,16 @@
 """`memo-ros launch`.
 
-One contour_node per camera as processes; all stop together, a death is reported.
+One contour_node per camera as processes; all stop together; a dead node is restarted, one
+that keeps dying stops the graph.
 """
 
 from __future__ import annotations
 
 import os
+import queue
 import re
 import signal
+import threading
 import time
 
 from memo_ros.core.formats.studio import Studio, load_studio, studio_path
@@ -32,7 +35,7 @@ def _alive(pid: int) -> bool:
 
 
 def _started_pids(output: str) -> list[int]:
-    return [int(p) for p in re.findall(r'started \S+ \(pid (\d+)\)', output)]
+    return [int(p) for p in re.findall(r'started \S+ \(pid (\d+)[,)]', output)]
 
 
 def test_ctrl_c_stops_every_node_and_exits_zero(ros_env):
@@ -50,18 +53,82 @@ def test_ctrl_c_stops_every_node_and_exits_zero(ros_env):
     assert 'stopping on request' in out
 
 
-def test_a_dead_node_stops_the_graph_with_its_reason(ros_env):
+class _Lines:
+    """Collect a process's output lines on a thread, to wait for one with a timeout."""
+
+    def __init__(self, process) -> None:
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.seen: list[str] = []
+        threading.Thread(target=self._read, args=(process,), daemon=True).start()
+
+    def _read(self, process) -> None:
+        for line in process.stdout:
+            self.lines.put(line)
+
+    def wait_for(self, pattern: str, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            self.seen.append(line)
+            if re.search(pattern, line):
+                return line
+        raise AssertionError(
+            f'no line matching {pattern!r} in {timeout} s:\n' + ''.join(self.seen)
+        )
+
+
+def _diagnostics_value(ros_env, name: str, key: str, timeout: float = 10.0) -> str | None:
+    """Return ``key`` of the /diagnostics status whose name contains ``name`` (None: not seen)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    found: dict[str, str] = {}
+
+    def on_message(msg) -> None:
+        for status in msg.status:
+            if name in status.name:
+                found.update({v.key: v.value for v in status.values})
+
+    with ros_session('launch_diagnostics_probe', ros_env.domain_id) as (node, executor):
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_message, 50)
+        deadline = time.monotonic() + timeout
+        while key not in found and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+    return found.get(key)
+
+
+def test_a_killed_node_is_back_within_five_seconds_and_its_restart_shows(ros_env):
     launcher = ros_env.start('launch', 'street')
+    lines = _Lines(launcher)
+    first = lines.wait_for(r'started \S+/contour_node \(pid', 30)
     _wait_for_nodes(ros_env, ['/cam_street/contours'])
-    time.sleep(0.5)
-    line = ''
-    while 'started' not in line:
-        line = launcher.stdout.readline()
-    pid = _started_pids(line)[0]
+    pid = _started_pids(first)[0]
+    killed = time.monotonic()
     os.kill(pid, signal.SIGKILL)
-    out, _ = launcher.communicate(timeout=30)
+    lines.wait_for(r'cam_street/contour_node was killed by SIGKILL; restarting it in 0.5 s', 5)
+    again = lines.wait_for(r'started cam_street/contour_node \(pid \d+, restart 1\)', 5)
+    assert _started_pids(again)[0] != pid
+    assert _diagnostics_value(ros_env, 'contour_node', 'restarts') == '1'
+    assert time.monotonic() - killed < 15.0  # the node was back (publishing diagnostics)
+    assert launcher.poll() is None  # the graph goes on
+    launcher.send_signal(signal.SIGINT)
+    launcher.wait(timeout=30)
+    assert launcher.returncode == 0
+
+
+def test_a_node_that_keeps_dying_stops_the_graph_with_its_reason(ros_env):
+    launcher = ros_env.start('launch', 'street', '--max-restarts', '1')
+    lines = _Lines(launcher)
+    for _ in range(2):
+        started = lines.wait_for(r'started cam_street/contour_node \(pid', 30)
+        time.sleep(1.0)
+        os.kill(_started_pids(started)[0], signal.SIGKILL)
+    line = lines.wait_for('stopping the others', 30)
+    launcher.wait(timeout=30)
     assert launcher.returncode != 0
-    assert 'cam_street/contour_node was killed by SIGKILL; stopping the others' in out
+    assert 'cam_street/contour_node was killed by SIGKILL; it died 2 times' in line
 
 
 def test_unknown_studio_is_one_line(ros_env):

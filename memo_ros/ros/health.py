@@ -11,6 +11,7 @@ logged, and the node goes on.
 from __future__ import annotations
 
 from collections import Counter
+import os
 import threading
 import traceback
 from typing import Callable
@@ -41,6 +42,9 @@ class NodeHealth:
         self._level = DiagnosticStatus.OK
         self._lock = threading.Lock()
         self._failed: set[str] = set()  # callbacks whose traceback was logged
+        restarts = os.environ.get('MEMO_ROS_RESTARTS', '0')  # set by `memo-ros launch`
+        if restarts.isdigit() and int(restarts) > 0:
+            self.values['restarts'] = restarts
         self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._timer = node.create_timer(period, self.guard(self.publish, 'diagnostics timer'))
 

@@ -1,15 +1,20 @@
 """Start the graph for a studio: one contour_node per camera, each its own process.
 
 Every node gets the studio file as ``--ros-args --params-file``; its output is
-prefixed with its name.  Nothing is restarted silently: when one node ends,
-the launcher says how, stops the others and exits non-zero; Ctrl-C (or
-SIGTERM) stops them all and exits 0.
+prefixed with its name.  The launcher supervises, like launch's ``respawn``: a
+node that ends is said so and started again after a backoff (0.5 s, doubling
+to 5 s), its restarts counted (``MEMO_ROS_RESTARTS`` in its environment, which
+its /diagnostics reports as ``restarts``).  A node that keeps dying (more than
+``--max-restarts`` deaths within ``--restart-window`` seconds) stops the graph
+with one line saying why, and a non-zero exit; Ctrl-C (or SIGTERM) stops them
+all and exits 0.
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+import os
 from pathlib import Path
 import signal
 import subprocess
@@ -20,6 +25,11 @@ import time
 from memo_ros.core.formats.studio import Studio, studio_path
 
 STOP_GRACE_S = 5.0
+RESPAWN_DELAY_S = 0.5  # first restart after this long, doubling up to RESPAWN_DELAY_MAX_S
+RESPAWN_DELAY_MAX_S = 5.0
+MAX_RESTARTS = 5  # deaths of one node within RESTART_WINDOW_S that stop the graph
+RESTART_WINDOW_S = 60.0
+RESTARTS_ENV = 'MEMO_ROS_RESTARTS'  # how often the launcher restarted this node (its /diagnostics)
 ROLES = ('all', 'cameras', 'tracking')
 REPLAY_IMAGE_QUEUE = 100  # image queue of the contour nodes when a bag is replayed into them
 REPLAY_ROI_WAIT = (
@@ -38,6 +48,9 @@ class NodeProcess:
     label: str
     command: list[str]
     process: subprocess.Popen | None = None
+    restarts: int = 0
+    deaths: list[float] = field(default_factory=list)  # monotonic times of its recent deaths
+    respawn_at: float | None = None  # when a dead node is started again
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,13 +73,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         '--log-level', default='info', choices=('debug', 'info', 'warn', 'error', 'fatal')
     )
+    parser.add_argument(
+        '--max-restarts',
+        type=int,
+        default=MAX_RESTARTS,
+        help=f'a node that dies more often than this within --restart-window stops the graph '
+        f'(default {MAX_RESTARTS}; 0: the first death stops it, as without supervision)',
+    )
+    parser.add_argument(
+        '--restart-window',
+        type=float,
+        default=RESTART_WINDOW_S,
+        help=f'seconds over which deaths are counted (default {RESTART_WINDOW_S:g})',
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     path = studio_path(args.studio).resolve()
     studio = Studio.load(path)
     nodes = graph_commands(studio, path, args.reliable_images, args.log_level, args.role)
-    return Launcher(nodes).run()
+    if args.max_restarts < 0 or not args.restart_window > 0:
+        from memo_ros.tools.cli import CliError
+
+        raise CliError('--max-restarts must be >= 0 and --restart-window > 0')
+    return Launcher(nodes, args.max_restarts, args.restart_window).run()
 
 
 def graph_commands(
@@ -165,8 +195,15 @@ def graph_commands(
 class Launcher:
     """Runs node processes, prefixes their output, and stops them all together."""
 
-    def __init__(self, nodes: list[NodeProcess]) -> None:
+    def __init__(
+        self,
+        nodes: list[NodeProcess],
+        max_restarts: int = MAX_RESTARTS,
+        restart_window: float = RESTART_WINDOW_S,
+    ) -> None:
         self.nodes = nodes
+        self.max_restarts = max_restarts
+        self.restart_window = restart_window
         self._stop = threading.Event()
 
     def run(self) -> int:
@@ -176,30 +213,55 @@ class Launcher:
         }
         try:
             for node in self.nodes:
-                node.process = subprocess.Popen(
-                    node.command,
-                    stdout=subprocess.PIPE,
-                    stderr=subprocess.STDOUT,
-                    text=True,
-                    bufsize=1,
-                    start_new_session=True,
-                )
-                threading.Thread(target=self._relay, args=(node,), daemon=True).start()
-                self._say(f'started {node.label} (pid {node.process.pid})')
+                self._start(node)
             return self._supervise()
         finally:
             self._stop_all()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
 
+    def _start(self, node: NodeProcess) -> None:
+        """Start (or restart) one node, its restart count in its environment."""
+        env = dict(os.environ, **{RESTARTS_ENV: str(node.restarts)})
+        node.process = subprocess.Popen(
+            node.command,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+            start_new_session=True,
+            env=env,
+        )
+        node.respawn_at = None
+        threading.Thread(target=self._relay, args=(node,), daemon=True).start()
+        again = f', restart {node.restarts}' if node.restarts else ''
+        self._say(f'started {node.label} (pid {node.process.pid}{again})')
+
     def _supervise(self) -> int:
+        """Restart nodes that die, with a backoff; stop everything when one keeps dying."""
         while not self._stop.is_set():
+            now = time.monotonic()
             for node in self.nodes:
-                code = node.process.poll()
-                if code is not None:
-                    self._say(f'{node.label} {exit_reason(code)}; stopping the others')
+                if node.respawn_at is not None:
+                    if now >= node.respawn_at:
+                        node.restarts += 1
+                        self._start(node)
+                    continue
+                code = node.process.poll() if node.process is not None else None
+                if code is None:
+                    continue
+                node.deaths = [t for t in node.deaths if now - t < self.restart_window] + [now]
+                if len(node.deaths) > self.max_restarts:
+                    self._say(
+                        f'{node.label} {exit_reason(code)}; it died {len(node.deaths)} times in '
+                        f'{self.restart_window:g} s, more than --max-restarts '
+                        f'{self.max_restarts}: stopping the others'
+                    )
                     return code if code > 0 else 1
-            time.sleep(0.1)
+                delay = min(RESPAWN_DELAY_S * 2 ** (len(node.deaths) - 1), RESPAWN_DELAY_MAX_S)
+                node.respawn_at = now + delay
+                self._say(f'{node.label} {exit_reason(code)}; restarting it in {delay:g} s')
+            time.sleep(0.05)
         self._say('stopping on request')
         return 0
 
