@@ -150,3 +150,67 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
         spin_until(lambda: len(joints) > before)
         spin_until(lambda: 'resets' in values)
         assert process.poll() is None, 'the tracker must keep running'
+
+
+def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(ros_env, tmp_path):
+    scenario = make_scenario('studio-arm', BODY)
+    frames = 12
+    q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
+    studio = tmp_path / 'studio.yaml'
+    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(
+        studio
+    )
+    # waiting for the selector's assignment with a long join timeout: a dead selector would cost
+    # 2 s per frame if the tracker kept waiting for it
+    process = _start_tracker(ros_env, studio, 'wait_for_assignment:=true', 'join_timeout:=2.0')
+    cams = [c.name for c in scenario.cameras]
+    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    with ros_session('silent_selector_feeder', ros_env.domain_id) as (node, executor):
+        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
+        processed: list[tuple[float, Header]] = []
+        node.create_subscription(
+            Header, PROCESSED_TOPIC, lambda m: processed.append((time.monotonic(), m)), 100
+        )
+        values: dict[str, str] = {}
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name.endswith('tracker_node'):
+                    values.update({kv.key: kv.value for kv in status.values})
+
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+
+        def spin_until(condition, timeout=30.0) -> None:
+            end = time.monotonic() + timeout
+            while not condition() and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            assert condition(), ' '.join(f'{k}={v}' for k, v in sorted(values.items()))
+
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        sent = []
+
+        def send(k: int) -> None:
+            for cam in cams:
+                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            sent.append(time.monotonic())
+            end = time.monotonic() + 0.2  # 5 frames/s in
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.02)
+
+        for k in range(4):  # the first frames wait out join_timeout for the missing assignment
+            send(k)
+        spin_until(lambda: len(processed) >= 4)
+        for k in range(4, frames):
+            send(k)
+        spin_until(lambda: len(processed) >= frames)
+        spin_until(lambda: 'assignment_not_waited_for' in values, timeout=5.0)
+    process.terminate()
+    process.wait(timeout=20)
+    outcomes = [m.frame_id.split(' ')[0] for _, m in processed]
+    assert outcomes.count('tracking') >= frames - 1, outcomes
+    # after the first frames the tracker stops waiting for the assignment: each frame is done
+    # within a fraction of the join timeout after its contours went out
+    stamps = [m.stamp.sec * 10**9 + m.stamp.nanosec for _, m in processed]
+    latency = [t - sent[(s - T0) // DT] for (t, _), s in zip(processed, stamps)]
+    assert max(latency[4:]) < 1.0, latency
+    assert values['assignment'].startswith('missing'), values

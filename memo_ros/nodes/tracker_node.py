@@ -329,6 +329,7 @@ class TrackerNode(Node):
         self.first_stamp_ns: int | None = None
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
+        self.missed_assignments = 0  # joined frames in a row without the selector's assignment
         self.missed: dict[str, int] = dict.fromkeys(
             self.camera_names, 0
         )  # joined frames in a row without it
@@ -572,7 +573,8 @@ class TrackerNode(Node):
         ]
 
     def _complete(self, stamp: int, frame: PendingFrame) -> bool:
-        if self.params['wait_for_assignment'] and frame.assignment is None:
+        waiting = self.missed_assignments < MISSES_BEFORE_NOT_WAITING
+        if self.params['wait_for_assignment'] and waiting and frame.assignment is None:
             return False
         return all(c in frame.contours for c in self._expected_cameras(stamp, frame))
 
@@ -604,6 +606,20 @@ class TrackerNode(Node):
         frame = self.pending.pop(stamp)
         self._done(stamp)  # from now on a message of this frame is late, not a new frame
         missing = [c for c in self._expected_cameras(stamp, frame) if c not in frame.contours]
+        if frame.assignment is not None:
+            if self.missed_assignments >= MISSES_BEFORE_NOT_WAITING:
+                self.health.set('assignment', 'waited for')
+            self.missed_assignments = 0
+        elif self.params['wait_for_assignment']:
+            self.missed_assignments += 1
+            if self.missed_assignments == MISSES_BEFORE_NOT_WAITING:
+                # a dead selector must not stall tracking: every visible camera updates every part
+                self.health.note(
+                    'assignment_not_waited_for',
+                    f'no camera assignment in {MISSES_BEFORE_NOT_WAITING} frames in a row: not '
+                    'waited for until one comes again; tracking with every camera',
+                )
+                self.health.set('assignment', 'missing (selector silent): every camera used')
         for cam in missing:
             self.missed[cam] += 1
             if self.missed[cam] == MISSES_BEFORE_NOT_WAITING:
