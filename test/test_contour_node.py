@@ -146,8 +146,12 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
             image(width=16, step=16, sec=5),
             image(sec=6),
             image(sec=7),
-            image(sec=3),
-        ]:  # last jumps back
+            image(sec=3),  # one stale image: dropped, the history kept
+            image(sec=8),
+            image(sec=4),  # then three in a row back in time (a bag loop): the history reset
+            image(sec=5),
+            image(sec=6),
+        ]:
             image_pub.publish(msg)
             time.sleep(0.1)
         spin_until(
@@ -156,6 +160,7 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
                 'dropped.bad_step',
                 'dropped.bad_data_length',
                 'dropped.size_mismatch',
+                'dropped.out_of_order',
                 'time_jump_resets',
             ]
         )
@@ -163,10 +168,12 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
         reports.clear()
         spin_until(['processed'])
         assert (
-            int(values['processed']) == processed_before + 3
-            and int(values['frames_in']) == before + 7
+            int(values['processed']) == processed_before + 4
+            and int(values['frames_in']) == before + 11
         )
-        assert int(values['dropped.total']) == dropped_before + 4
+        assert int(values['dropped.out_of_order']) == 3  # sec 3, then sec 4 and 5 before the reset
+        assert int(values['dropped.total']) == dropped_before + 7
+        assert int(values['time_jump_resets']) == 1
         assert node_process.poll() is None
 
 

@@ -199,6 +199,14 @@ PARAMS = (
         read_only=True,
     ),
     Param('image_queue_depth', 5, 'image subscription queue depth', 1, 1000, read_only=True),
+    Param(
+        'jump_back_frames',
+        3,
+        'images in a row stamped before the newest processed one that mean the clock jumped back '
+        '(a bag loop): the frame history is reset; fewer are dropped as out of order',
+        1,
+        1000,
+    ),
 )
 INFO_QUEUE_DEPTH = 100  # camera_info is small: a deep queue keeps every frame's announcement
 
@@ -280,6 +288,7 @@ class ContourNode(Node):
         self.pipeline = self._new_pipeline()
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
+        self.backward_stamps: list[int] = []  # the current run of images older than the newest
         self.markers: tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = (
             None
         )
@@ -515,13 +524,27 @@ class ContourNode(Node):
                 'no_camera_info', 'image before any camera_info: processed without the size check'
             )
         if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
+            # one stale image must not cost the learnt background: only a run of them (a bag
+            # loop, a clock set back) starts the history anew
+            run = self.backward_stamps
+            if run and stamp <= run[-1]:
+                run.clear()  # not one new timeline: each must be newer than the one before
+            run.append(stamp)
+            if len(run) < self.params['jump_back_frames']:
+                self.health.drop(
+                    'out_of_order', 'image stamped before the newest processed one: dropped'
+                )
+                return
+            run.clear()
             self.pipeline = self._new_pipeline()
             self.markers = None
             self.lost.reset()
             self._saved_background = None
             self._load_background()
-            self.health.note(
-                'time_jump_resets', 'timestamps went backwards (bag loop?): frame history reset'
+            self.health.warn(
+                'time_jump_resets',
+                f'{self.params["jump_back_frames"]} images in a row went back in time (bag loop '
+                'or clock jump): frame history reset',
             )
         elif self.last_stamp_ns is not None and stamp == self.last_stamp_ns:
             self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
@@ -545,6 +568,7 @@ class ContourNode(Node):
                 f'{info.width}x{info.height}',
             )
             return
+        self.backward_stamps.clear()
         previous_ns, self.last_stamp_ns = self.last_stamp_ns, stamp
         if self._waits_for_markers(previous_ns):
             self.pending = PendingImage(

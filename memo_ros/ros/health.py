@@ -71,6 +71,14 @@ class NodeHealth:
             self._problem = f'{reason}: {message}'
         self._node.get_logger().info(message, throttle_duration_sec=LOG_THROTTLE_S)
 
+    def warn(self, reason: str, message: str) -> None:
+        """Count an event that needs attention (a reset of learnt state) and log it as a warning."""
+        with self._lock:
+            self.counters[reason] += 1
+            self._problem = f'{reason}: {message}'
+            self._level = DiagnosticStatus.WARN
+        self._node.get_logger().warning(message, throttle_duration_sec=LOG_THROTTLE_S)
+
     def internal_error(self, what: str, exc: BaseException) -> None:
         """Count an exception of ``what`` as internal_error; log its first traceback in full."""
         with self._lock:
