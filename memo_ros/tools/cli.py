@@ -64,17 +64,32 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print('memo-ros: interrupted', file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `memo-ros bag info BAG | head`: the reader left, nothing to say
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
     except CliError as exc:
+        print(f'memo-ros {args.command}: error: {" ".join(str(exc).split())}', file=sys.stderr)
+        return 2
+    except UnicodeDecodeError as exc:
+        print(
+            f'memo-ros {args.command}: error: a file given is not text (UTF-8): '
+            f'byte {exc.start} cannot be decoded',
+            file=sys.stderr,
+        )
+        return 2
+    except (OSError, ValueError) as exc:  # a bad file or value: its message says which
         print(f'memo-ros {args.command}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 - a tool run ends in one line, never a traceback
         if os.environ.get('MEMO_ROS_DEBUG'):
             raise
         print(
-            f'memo-ros {args.command}: error: {type(exc).__name__}: {" ".join(str(exc).split())}',
+            f'memo-ros {args.command}: internal error: {type(exc).__name__}: '
+            f'{" ".join(str(exc).split())} (MEMO_ROS_DEBUG=1 shows the traceback)',
             file=sys.stderr,
         )
-        return 1
+        return 2
 
 
 if __name__ == '__main__':

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+import math
 from pathlib import Path
 import shutil
 import sys
@@ -55,6 +56,22 @@ class SimulationResult:
     )
 
 
+def finite_positive(text: str) -> float:
+    """Parse an argparse number that must be finite and > 0."""
+    value = float(text)
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f'must be a finite number > 0, not {text}')
+    return value
+
+
+def finite_non_negative(text: str) -> float:
+    """Parse an argparse number that must be finite and >= 0."""
+    value = float(text)
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f'must be a finite number >= 0, not {text}')
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('scenario', help=f'one of: {", ".join(SCENARIOS)}')
     parser.add_argument(
@@ -65,13 +82,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'the studio YAML is written beside it as OUT.yaml',
     )
     parser.add_argument('--frames', type=int, help='number of frames (default per scenario)')
-    parser.add_argument('--rate', type=float, help='frames per second (default per scenario)')
+    parser.add_argument(
+        '--rate', type=finite_positive, help='frames per second (default per scenario)'
+    )
     parser.add_argument('--width', type=int, default=640)
     parser.add_argument('--height', type=int, default=480)
     parser.add_argument(
-        '--noise', type=float, default=3.0, help='sensor noise sigma in grey levels (0 = none)'
+        '--noise',
+        type=finite_non_negative,
+        default=3.0,
+        help='sensor noise sigma in grey levels (0 = none)',
     )
-    parser.add_argument('--blur', type=float, default=0.0, help='optical blur sigma in pixels')
+    parser.add_argument(
+        '--blur', type=finite_non_negative, default=0.0, help='optical blur sigma in pixels'
+    )
     parser.add_argument(
         '--lighting-change',
         type=float,

@@ -140,8 +140,13 @@ class Studio:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f'no studio file at {path}')
-        with open(path, encoding='utf-8') as stream:
-            data = yaml.safe_load(stream)
+        try:
+            with open(path, encoding='utf-8') as stream:
+                data = yaml.safe_load(stream)
+        except UnicodeDecodeError:
+            raise ValueError(f'{path}: not a text (UTF-8) file') from None
+        except yaml.YAMLError as exc:
+            raise ValueError(f'{path}: not YAML ({" ".join(str(exc).split())[:120]})') from None
         if not isinstance(data, dict):
             raise ValueError(f'{path}: not a YAML mapping')
         return cls.from_yaml_dict(data, str(path))

@@ -289,6 +289,14 @@ def run_record(args: argparse.Namespace) -> int:
         raise CliError('name the topics to record, or use --all')
     if args.topics and args.all:
         raise CliError('give either topics or --all, not both')
+    from rclpy.validate_topic_name import InvalidTopicNameException, validate_topic_name
+
+    for topic in args.topics:
+        try:
+            validate_topic_name(topic)
+        except InvalidTopicNameException as exc:
+            reason = str(exc).splitlines()[0].split(':', 1)[-1].strip()
+            raise CliError(f'{topic!r} is not a valid topic name ({reason})') from None
     if args.exclude:
         try:
             re.compile(args.exclude)
