@@ -28,6 +28,7 @@ from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import PART_NAMES
+from memo_ros.core.geometry.camera import intrinsics_problem
 from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.motion import (
     EXTRA_STATE_NAMES,
@@ -319,13 +320,13 @@ class SelectorNode(Node):
     def _check_camera_info(self, cam: str, msg: CameraInfo) -> tuple[str, str] | None:
         """(reason, message) when a camera_info is unusable or contradicts the studio's calibration."""
         k = np.asarray(msg.k, float)
-        if not np.all(np.isfinite(k)) or not np.any(k) or msg.width == 0 or msg.height == 0:
-            return (
-                'bad_camera_info',
-                f'{cam}/camera_info is uncalibrated or malformed (K {k.tolist()}, '
-                f'{msg.width}x{msg.height})',
-            )
+        problem = intrinsics_problem(msg.width, msg.height, msg.distortion_model, msg.d, k)
+        if problem:
+            return ('bad_camera_info', f'{cam}/camera_info does not make a camera: {problem}')
         model = self.studio.camera(cam)
+        problem = intrinsics_problem(msg.width, msg.height, msg.distortion_model, msg.d, k, model)
+        if problem:
+            return ('camera_info_mismatch', f'{cam}/camera_info: {problem}')
         if (msg.width, msg.height) != (model.width, model.height) or not np.allclose(
             k, model.K.ravel(), rtol=K_TOLERANCE, atol=K_TOLERANCE
         ):

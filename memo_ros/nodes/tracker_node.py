@@ -56,7 +56,7 @@ from memo_ros.ros.health import INTERNAL_ERROR, NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
 from memo_ros.ros.params import Param, declare
-from memo_ros.ros.pointcloud import pointcloud_to_array
+from memo_ros.ros.pointcloud import contour_cloud_to_table
 from memo_ros.ros.studio_params import studio_from_node
 
 PARAMS: tuple[Param, ...] = (
@@ -204,6 +204,14 @@ PARAMS: tuple[Param, ...] = (
         1,
         1000,
         read_only=True,
+    ),
+    Param(
+        'max_contour_points',
+        50000,
+        'largest contour cloud taken from one camera (points); a larger one is refused before it '
+        'is read (a 640x480 person has about 1,000)',
+        10,
+        10_000_000,
     ),
     Param(
         'hard_limits',
@@ -499,10 +507,7 @@ class TrackerNode(Node):
         self.health.count(f'contours_in.{cam}')
         stamp = stamp_to_ns(msg.header.stamp)
         try:
-            table = pointcloud_to_array(msg)
-            missing = [f for f in ('x', 'y', 'tx', 'ty') if f not in (table.dtype.names or ())]
-            if missing:
-                raise ValueError(f'no field {", ".join(missing)}')
+            table = contour_cloud_to_table(msg, self.params['max_contour_points'])
         except ValueError as exc:
             self.health.drop('bad_contours', f'{cam}: contours unreadable: {exc}')
             return

@@ -171,3 +171,30 @@ def table_columns(array: np.ndarray) -> tuple[list[str], list[np.ndarray]]:
                 names.append(f'{name}[{index}]')
                 columns.append(values[:, index])
     return names, columns
+
+
+def contour_cloud_to_table(msg, max_points: int) -> np.ndarray:
+    """Return a contour cloud's table (``x, y, tx, ty`` float32, ``contour`` uint32 when present).
+
+    Its size is checked before anything is allocated, and its fields' declared types must be
+    those of DESIGN.md's contour table: a cloud that declares ``x`` as uint8 is refused, not
+    reinterpreted. ValueError says why a cloud is refused.
+    """
+    points = int(msg.height) * int(msg.width)
+    if points > max_points:
+        raise ValueError(f'{points} points, more than max_contour_points {max_points}')
+    declared = {f.name: int(f.datatype) for f in msg.fields}
+    wrong = [
+        name
+        for name in ('x', 'y', 'tx', 'ty')
+        if name in declared and declared[name] != PointField.FLOAT32
+    ]
+    if 'contour' in declared and declared['contour'] != PointField.UINT32:
+        wrong.append('contour')
+    if wrong:
+        raise ValueError(f"field(s) {', '.join(wrong)} not of the contour table's type")
+    table = pointcloud_to_array(msg)
+    missing = [f for f in ('x', 'y', 'tx', 'ty') if f not in (table.dtype.names or ())]
+    if missing:
+        raise ValueError(f'no field {", ".join(missing)}')
+    return table

@@ -503,3 +503,39 @@ class Camera:
             np.eye(3) if R_world_cam is None else R_world_cam,
             np.zeros(3) if t_world_cam is None else t_world_cam,
         )
+
+
+def intrinsics_problem(
+    width: int, height: int, distortion_model: str, d, k, expected: Camera | None = None
+) -> str | None:
+    """Return why CameraInfo-like intrinsics cannot be this camera, or None when they can.
+
+    They must make a camera (positive size and focal lengths, the principal point near the
+    image, a known distortion model with its number of finite coefficients) and, given the
+    studio's ``expected`` camera, agree with it (size, K, distortion model).
+    """
+    d, k = np.asarray(d, float).ravel(), np.asarray(k, float).ravel()
+    if int(width) <= 0 or int(height) <= 0:
+        return f'image size {width}x{height}'
+    if k.size != 9 or not np.all(np.isfinite(k)):
+        return f'K {k.tolist()} is not 9 finite numbers'
+    if k[0] <= 0 or k[4] <= 0 or k[3] != 0 or tuple(k[6:]) != (0.0, 0.0, 1.0):
+        return f'K {k.tolist()} is not a camera matrix (positive focal lengths, last row 0 0 1)'
+    if not (-0.5 * width <= k[2] <= 1.5 * width and -0.5 * height <= k[5] <= 1.5 * height):
+        return f'principal point ({k[2]:g}, {k[5]:g}) far from the {width}x{height} image'
+    if not np.all(np.isfinite(d)):
+        return f'D {d.tolist()} is not finite'
+    try:
+        model, _ = _normalise_model(distortion_model, d)
+    except ValueError as exc:
+        return str(exc)
+    if model != 'none' and len(d) not in (N_COEFFS[model], 4 if model == 'plumb_bob' else -1):
+        return f'{model} takes {N_COEFFS[model]} distortion coefficients, got {len(d)}'
+    if expected is not None:
+        if (int(width), int(height)) != (expected.width, expected.height):
+            return f"size {width}x{height} differs from the studio's {expected.width}x{expected.height}"
+        if model != expected.distortion_model and (np.any(d) or expected.has_distortion):
+            return (
+                f"distortion model {model} differs from the studio's {expected.distortion_model}"
+            )
+    return None
