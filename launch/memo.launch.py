@@ -21,6 +21,7 @@ def _graph(context):
     from memo_ros.tools.launch import (
         REPLAY_IMAGE_QUEUE,
         REPLAY_JOIN_TIMEOUT,
+        REPLAY_MAX_LAG,
         REPLAY_ROI_WAIT,
         RESPAWN_DELAY_S,
         ROLES,
@@ -74,7 +75,9 @@ def _graph(context):
                 package='memo_ros',
                 executable='tracker_node',
                 name='tracker_node',
-                parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT}] if reliable else [path],
+                parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT, 'max_lag': REPLAY_MAX_LAG}]
+                if reliable
+                else [path],
                 output='screen',
                 respawn=True,
                 respawn_delay=RESPAWN_DELAY_S,

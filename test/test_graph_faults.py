@@ -30,7 +30,7 @@ from memo_ros.tools.evaluate import (
     load_track,
     match_and_measure,
 )
-from memo_ros.tools.launch import REPLAY_JOIN_TIMEOUT
+from memo_ros.tools.launch import REPLAY_JOIN_TIMEOUT, REPLAY_MAX_LAG
 from memo_ros.tools.simulate import simulate
 
 FRAMES = 450  # 15 s of studio-arm at 30 Hz (10 of them the empty studio)
@@ -91,6 +91,8 @@ class Graph:
                 self.studio,
                 '-p',
                 f'join_timeout:={REPLAY_JOIN_TIMEOUT}',
+                '-p',
+                f'max_lag:={REPLAY_MAX_LAG}',
             )
         else:
             self.processes[name] = self.env.start_node(

@@ -35,6 +35,7 @@ REPLAY_IMAGE_QUEUE = 100  # image queue of the contour nodes when a bag is repla
 REPLAY_ROI_WAIT = (
     0.5  # s a contour node waits for the tracked body of the previous image in a replay
 )
+REPLAY_MAX_LAG = 3600.0  # s: a replay tracks every frame, however far behind it falls
 REPLAY_JOIN_TIMEOUT = (
     3.0  # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
 )
@@ -169,7 +170,12 @@ def graph_commands(
             log_level,
         ]
         if reliable_images:
-            tracker += ['-p', f'join_timeout:={REPLAY_JOIN_TIMEOUT}']
+            tracker += [
+                '-p',
+                f'join_timeout:={REPLAY_JOIN_TIMEOUT}',
+                '-p',
+                f'max_lag:={REPLAY_MAX_LAG}',
+            ]
         nodes.append(NodeProcess('tracker_node', tracker))
     if (
         'walker_node' in studio.node_parameters
