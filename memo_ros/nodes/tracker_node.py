@@ -237,7 +237,7 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'max_lag',
-        0.1,
+        1.0,
         'frames are tracked in order, but one older than the newest complete frame by more than '
         'this (stamp time) is skipped (counted skipped_behind): the latency bound when the '
         'update is slower than '

@@ -354,7 +354,7 @@ class ArticulatedTracker:
         self.since_twin += 1
         if self.twin_ekf is None:
             due = s.twin_recheck > 0 and self.since_twin >= s.twin_recheck
-            if not (start_twin or due or self.bad_frames):
+            if not (start_twin or due or self.bad_frames == 1):  # a run of bad frames: one look
                 return
             self.twin_ekf = self._twin_filter(self.ekf, free)
             if start_twin and self._start_twin is not None:
