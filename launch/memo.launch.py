@@ -99,6 +99,7 @@ def _graph(context):
 
 
 def generate_launch_description():
+    """Describe the graph for the studio, role and replay settings given on the command line."""
     return LaunchDescription(
         [
             DeclareLaunchArgument(

@@ -43,6 +43,7 @@ class RosEnv(dict):
         self.processes: list[subprocess.Popen] = []
 
     def command(self, *args) -> list[str]:
+        """Return the command line that runs `memo-ros ARGS` in this environment."""
         return [sys.executable, '-m', 'memo_ros.tools.cli', *map(str, args)]
 
     def start(self, *args) -> subprocess.Popen:
@@ -88,6 +89,7 @@ class RosEnv(dict):
         return subprocess.CompletedProcess(process.args, process.returncode, out, err)
 
     def kill_all(self) -> None:
+        """Kill every process started here that still runs, and collect its output."""
         for process in self.processes:
             if process.poll() is None:
                 process.kill()

@@ -69,6 +69,7 @@ class Graph:
             self.start(name)
 
     def start(self, name: str) -> None:
+        """Start the named node process as the test graph runs it."""
         self.started_ns[name] = time.time_ns()
         if name in self.cameras:
             self.processes[name] = self.env.start_node(
@@ -100,13 +101,16 @@ class Graph:
             )
 
     def kill(self, name: str) -> None:
+        """Kill the named node process (SIGKILL)."""
         self.processes[name].kill()
         self.processes[name].communicate()
 
     def alive(self) -> bool:
+        """Return whether every started node process still runs."""
         return all(p.poll() is None for p in self.processes.values())
 
     def stop(self) -> None:
+        """Stop every node process started here."""
         for p in self.processes.values():
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)

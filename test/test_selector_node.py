@@ -154,11 +154,13 @@ class Feeder:
                 self.diagnostics.update({kv.key: kv.value for kv in status.values})
 
     def spin(self, seconds: float) -> None:
+        """Spin the test node for ``seconds``."""
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.02)
 
     def wait_for_node(self, timeout: float = 20.0) -> None:
+        """Wait until the selector subscribes the inputs and publishes its outputs."""
         deadline = time.monotonic() + timeout
         publishers = list(self.info.values()) + list(self.contours.values()) + [self.joints]
         while not (
@@ -170,6 +172,7 @@ class Feeder:
         self.spin(0.5)
 
     def camera_info(self, name: str, stamp_ns: int, **fields) -> None:
+        """Publish a camera's camera_info at ``stamp_ns`` (fields may be overridden)."""
         camera = next(c for c in self.cameras if c.name == name)
         f = camera.to_camera_info_fields() | fields
         msg = CameraInfo(
@@ -186,11 +189,13 @@ class Feeder:
         self.info[name].publish(msg)
 
     def frame(self, stamp_ns: int, names) -> None:
+        """Publish the camera_info of the named cameras for one frame."""
         for name in names:
             self.camera_info(name, stamp_ns)
         self.spin(0.03)
 
     def wait_for(self, predicate, timeout: float = 10.0) -> None:
+        """Spin until ``predicate()`` holds, failing after ``timeout`` s."""
         deadline = time.monotonic() + timeout
         while not predicate():
             assert time.monotonic() < deadline, 'timed out'

@@ -28,6 +28,8 @@ HEIGHT_MM = 1750.0
 
 @dataclass
 class Replay:
+    """The errors of a replayed bag against its truth, and where the outputs are."""
+
     errors: FrameErrors
     out: Path
     truth_frames: int

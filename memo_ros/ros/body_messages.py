@@ -41,6 +41,7 @@ def stamp_from_ns(stamp_ns: int) -> Time:
 
 
 def world_header(stamp_ns: int) -> Header:
+    """Return a Header in the world frame stamped ``stamp_ns``."""
     return Header(stamp=stamp_from_ns(stamp_ns), frame_id=WORLD)
 
 

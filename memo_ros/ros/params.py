@@ -51,6 +51,7 @@ class Param:
         return None
 
     def descriptor(self) -> ParameterDescriptor:
+        """Return the ROS ParameterDescriptor: description, range and read-only flag."""
         text = self.description + (f' (one of: {", ".join(self.choices)})' if self.choices else '')
         desc = ParameterDescriptor(name=self.name, description=text, read_only=self.read_only)
         if isinstance(self.default, float):

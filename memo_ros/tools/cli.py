@@ -43,6 +43,7 @@ class CliError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """Build the `memo-ros` parser with one sub-command per tool."""
     parser = argparse.ArgumentParser(prog='memo-ros', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     sub.required = True
@@ -57,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run `memo-ros ARGS`; every failure ends in one line on stderr and exit 2."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -47,6 +47,7 @@ class PoseTrack:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument('--truth', type=Path, help="bag with /memo/truth/* (the simulator's)")
     parser.add_argument(
         '--estimate',
@@ -87,6 +88,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
     if args.keypoints and args.images is None:

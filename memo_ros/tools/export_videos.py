@@ -46,6 +46,7 @@ CODECS = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument('kind', choices=('videos',), help='what to export: videos')
     parser.add_argument('bag', type=Path, help='rosbag2 with /<cam>/image_raw topics')
     parser.add_argument('--out', '-o', type=Path, required=True, help='output folder')
@@ -105,6 +106,7 @@ class ExportResult:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
     try:

@@ -43,6 +43,7 @@ CROP_TOLERANCE = 16  # px: one H.264 macroblock; codecs pad or crop frames to a 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument('kind', choices=('videos',), help='what to import: videos')
     parser.add_argument('videos', nargs='+', type=Path, help='one video per camera')
     parser.add_argument(
@@ -140,6 +141,7 @@ class ImportResult:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
     try:

@@ -8,9 +8,15 @@ recording, so a second evaluation is fast.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 import hashlib
+import os
 from pathlib import Path
+import sys
+import tempfile
+import warnings
 
 import numpy as np
 
@@ -36,13 +42,40 @@ class Detections:
     confidence: np.ndarray
 
 
+@contextmanager
+def _native_logs_quiet() -> Iterator[None]:
+    """Keep TFLite's and glog's lines (written by C++ straight to fd 2) off the user's terminal.
+
+    They are informational (an XNNPACK delegate was created, a feedback
+    manager disabled) and no environment variable silences them; with
+    MEMO_ROS_DEBUG set they are shown.
+    """
+    if os.environ.get('MEMO_ROS_DEBUG'):
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as scratch, warnings.catch_warnings():
+            warnings.filterwarnings('ignore', 'SymbolDatabase.GetPrototype', UserWarning)
+            os.dup2(scratch.fileno(), 2)
+            try:
+                yield
+            finally:
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
 def _pose_estimator():
     """Return a mediapipe Pose in image mode (one detection per picture), or explain how to get it."""
     try:
         from mediapipe.python.solutions.pose import Pose
     except ImportError as exc:
         raise KeypointsUnavailable(
-            f'the keypoint detector is not installed ({exc}): pip install memo_ros[keypoints]'
+            f'the keypoint detector is not installed ({exc}): pip install memo_ros[keypoints] '
+            '(scripts/setup.sh installs it without opencv-contrib-python)'
         ) from None
     return Pose(static_image_mode=True, model_complexity=MODEL_COMPLEXITY)
 
@@ -58,7 +91,7 @@ def detect(bag: Path, cameras: list[str], cache: Path | None = None) -> Detectio
                 )
     topics = {f'/{c}/image_raw': k for k, c in enumerate(cameras)}
     found: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
-    with _pose_estimator() as pose:
+    with _native_logs_quiet(), _pose_estimator() as pose:
         for m in read_messages(bag, list(topics)):
             frame = image_message_to_frame(m.message)
             found.setdefault(stamp_to_ns(m.message.header.stamp), {})[topics[m.topic]] = _detect(

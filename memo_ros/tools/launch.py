@@ -55,6 +55,7 @@ class NodeProcess:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument(
         'studio', help='studio YAML (path, or a shipped name such as studio_orthogonal)'
     )
@@ -90,6 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     path = studio_path(args.studio).resolve()
     studio = Studio.load(path)
     nodes = graph_commands(studio, path, args.reliable_images, args.log_level, args.role)
@@ -213,6 +215,7 @@ class Launcher:
         self._stop = threading.Event()
 
     def run(self) -> int:
+        """Start every node, supervise them until a stop, stop them all; the exit code."""
         previous = {
             s: signal.signal(s, lambda *_: self._stop.set())
             for s in (signal.SIGINT, signal.SIGTERM)

@@ -15,6 +15,7 @@ class Progress:
         self._last = 0.0
 
     def update(self, done: int) -> None:
+        """Show ``done`` items on the status line (only on a terminal, at most a few times a second)."""
         if not self.enabled:
             return
         now = time.monotonic()
@@ -31,6 +32,7 @@ class Progress:
         sys.stderr.flush()
 
     def close(self) -> None:
+        """End the status line."""
         if self.enabled:
             sys.stderr.write('\n')
             sys.stderr.flush()

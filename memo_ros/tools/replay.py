@@ -40,6 +40,7 @@ DRAIN_IDLE_S = 2.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument(
         'bag', type=Path, help='input bag with /<cam>/image_raw and /<cam>/camera_info'
     )
@@ -75,6 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
     studio_file = args.studio or args.bag.with_name(args.bag.name + '.yaml')
@@ -160,6 +162,7 @@ class Pacer:
         self._cond = threading.Condition()
 
     def on_processed(self, msg) -> None:
+        """Note that the graph finished the frame of this /memo/processed message."""
         stamp = msg.stamp.sec * 1_000_000_000 + msg.stamp.nanosec
         with self._cond:
             self.processed += 1
@@ -167,6 +170,7 @@ class Pacer:
             self._cond.notify_all()
 
     def before_publish(self, item, pace: bool) -> None:
+        """Hold a frame back until the previous one was processed (with back-pressure)."""
         stamp = frame_stamp(item.data)
         if self.current_ns is not None and stamp <= self.current_ns:
             return

@@ -73,6 +73,7 @@ def finite_non_negative(text: str) -> float:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument('scenario', help=f'one of: {", ".join(SCENARIOS)}')
     parser.add_argument(
         '--out',
@@ -127,6 +128,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
     if args.scenario not in SCENARIOS:

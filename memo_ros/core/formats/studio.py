@@ -55,6 +55,7 @@ class Studio:
 
     @property
     def camera_names(self) -> list[str]:
+        """Return the studio's camera names, in the file's order."""
         return [c.name for c in self.cameras]
 
     def to_yaml_dict(self) -> dict:

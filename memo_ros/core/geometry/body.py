@@ -149,6 +149,7 @@ class Body:
 
     @property
     def n_coordinates(self) -> int:
+        """Return the number of generalized coordinates (6 root + the joint axes)."""
         return len(self.coordinate_names)
 
     def coordinate_index(self, name: str) -> int:

@@ -36,6 +36,7 @@ class HullMeasure:
 
     @property
     def height(self) -> float:
+        """Return the hull's height over its lowest point, m."""
         return self.top - self.bottom
 
 

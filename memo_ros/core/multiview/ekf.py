@@ -33,6 +33,7 @@ class Measurements:
 
     @classmethod
     def empty(cls, n: int) -> 'Measurements':
+        """Return no measurement for an n-coordinate state (an update that changes nothing)."""
         return cls(np.zeros((0, n)), np.zeros(0), np.zeros(0))
 
     def __len__(self) -> int:

@@ -72,6 +72,7 @@ class BackgroundModel:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """Return the background image's (height, width)."""
         return self.image.shape[:2]
 
     @property

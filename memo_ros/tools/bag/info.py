@@ -49,6 +49,7 @@ class BagSummary:
 
     @property
     def duration_ns(self) -> int:
+        """Return the time from the first to the last message, ns."""
         return self.end_ns - self.start_ns
 
 

@@ -20,6 +20,7 @@ SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker', 'walk
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare this command's arguments and options."""
     parser.add_argument(
         'suite',
         choices=SUITES,
@@ -45,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
     if args.repeat < 1:

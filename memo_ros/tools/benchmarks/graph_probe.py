@@ -70,6 +70,7 @@ class Restamper:
         self._player = threading.local()  # each player thread counts its own passes
 
     def before_publish(self, item) -> None:
+        """Restamp a frame's messages to the wall clock as they go out."""
         original = header_stamp_ns(item.data)
         player = self._player
         if original < getattr(player, 'last', original):  # the bag starts again (--loops)

@@ -103,6 +103,7 @@ def cpu_snapshot(pids: dict[int, str]) -> tuple[float, dict[int, float]]:
 
 
 def rss_of(pids: dict[int, str]) -> dict[int, float | None]:
+    """Return each process's resident memory, MB (None once it has ended)."""
     out = {}
     for pid in pids:
         try:
@@ -139,6 +140,7 @@ def memory_growth(
 
 
 def peak_rss_of(pid: int) -> float | None:
+    """Return a process's peak resident memory (VmHWM), MB, or None once it has ended."""
     try:
         return peak_rss_mb(pid)
     except OSError:
