@@ -8,8 +8,10 @@ from __future__ import annotations
 import itertools
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -89,10 +91,21 @@ class RosEnv(dict):
         return subprocess.CompletedProcess(process.args, process.returncode, out, err)
 
     def kill_all(self) -> None:
-        """Kill every process started here that still runs, and collect its output."""
-        for process in self.processes:
-            if process.poll() is None:
+        """Stop every process started here that still runs, and collect its output.
+
+        SIGINT first, so a `memo-ros launch` stops the nodes it started in their own sessions
+        (a SIGKILL would leave them running, orphaned, on this test's domain); SIGKILL after 10 s.
+        """
+        running = [p for p in self.processes if p.poll() is None]
+        for process in running:
+            process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + 10.0
+        for process in running:
+            try:
+                process.wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
                 process.kill()
+        for process in self.processes:
             if not (process.stdout and process.stdout.closed):  # not collected by the test already
                 process.communicate()
 

@@ -246,6 +246,7 @@ PARAMS: tuple[Param, ...] = (
         3600.0,
     ),
 )
+SET_POSE_TTL_S = 2.0  # wall time an accepted set_pose waits for the frame that starts from it
 LATE_STAMPS_KEPT = 512  # stamps of late frames remembered, so each is counted once
 EXPIRY_CHECK_S = 0.02  # how often frames whose join wait expired are looked for
 MISSES_BEFORE_NOT_WAITING = (
@@ -337,6 +338,7 @@ class TrackerNode(Node):
         self.first_stamp_ns: int | None = None
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
+        self.set_pose_wall: float | None = None  # when an accepted set_pose is waiting for a frame
         self.missed_assignments = 0  # joined frames in a row without the selector's assignment
         self.missed: dict[str, int] = dict.fromkeys(
             self.camera_names, 0
@@ -450,6 +452,7 @@ class TrackerNode(Node):
         except ValueError as exc:
             self.health.drop('absurd_set_pose', f'set_pose refused: {exc}')
             return
+        self.set_pose_wall = time.monotonic()
         self.health.note('set_pose', 'pose set: the next frame starts from it')
 
     # ------------------------------------------------------------ inputs (executor thread)
@@ -725,6 +728,16 @@ class TrackerNode(Node):
             return 'no_contours'
         if self.body_silhouettes is not None and not self._measure_body(frame.contours):
             return 'waiting'
+        if (
+            self.set_pose_wall is not None
+            and time.monotonic() - self.set_pose_wall > SET_POSE_TTL_S
+            and self.tracker.status != TRACKING
+        ):
+            # a pose set for the next frame that no frame followed within the TTL is stale: it
+            # must not decide how a later, unrelated stream starts
+            self.tracker.reset()
+            self.health.drop('set_pose_expired', 'set_pose not followed by a frame: discarded')
+        self.set_pose_wall = None
         selected = None
         if frame.assignment is not None:
             selected = {
