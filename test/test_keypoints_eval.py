@@ -97,6 +97,7 @@ def test_the_cli_tells_a_track_on_the_right_sides_from_one_turned_round(recordin
     right = _cli('evaluate', '--keypoints', '--images', recording, '--estimate',
                  tmp_path / 'right', '--json')  # fmt: skip
     assert right.returncode == 0, right.stderr
+    assert right.stderr == ''  # the detector ran: its native log lines stay off the terminal
     figures = json.loads(right.stdout)
     assert figures['frames_sides_agree'] == FRAMES
     assert figures['mpjpe_raw_mm'] == pytest.approx(20.0, abs=0.5)
@@ -106,8 +107,15 @@ def test_the_cli_tells_a_track_on_the_right_sides_from_one_turned_round(recordin
     assert swapped.returncode == 0, swapped.stderr
     assert json.loads(swapped.stdout)['frames_sides_disagree'] == FRAMES
     printed = _cli('evaluate', '--keypoints', '--images', recording, '--estimate',
-                   tmp_path / 'right')  # fmt: skip
+                   tmp_path / 'right', '--plots', tmp_path / 'plots', '--per-frame',
+                   tmp_path / 'frames.csv')  # fmt: skip
     assert 'left/right agree' in printed.stdout and printed.returncode == 0
+    assert printed.stderr == ''
+    assert len((tmp_path / 'frames.csv').read_text().splitlines()) == FRAMES + 1
+    assert sorted(p.name for p in (tmp_path / 'plots').iterdir()) == [
+        'keypoints_per_frame.png',
+        'keypoints_per_joint.png',
+    ]
 
 
 def test_keypoints_need_the_recording(tmp_path):

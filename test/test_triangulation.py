@@ -1,4 +1,4 @@
-"""Triangulation of keypoints as Pose2Sim does it, and the comparison of a track with a reference."""
+"""Triangulation of keypoints as Pose2Sim does it; a track compared with such a reference."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.evaluation.keypoints import JOINTS, compare, heading, procrustes
-from memo_ros.core.evaluation.triangulation import triangulate
+from memo_ros.core.evaluation.triangulation import temporal_outliers, triangulate
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import rot_z
 
@@ -70,7 +70,10 @@ def test_two_cameras_are_the_least_and_one_gives_nothing():
 
 
 def _standing(facing_deg: float) -> np.ndarray:
-    """Return 12 joints of a person standing at the origin, facing ``facing_deg`` (its left at +y)."""
+    """Return 12 joints of a person standing at the origin, facing ``facing_deg``.
+
+    Facing 0 degrees (+x), its left is at +y.
+    """
     y = {'l': 0.18, 'r': -0.18}
     z = {'shoulder': 1.45, 'elbow': 1.15, 'wrist': 0.85, 'hip': 0.95, 'knee': 0.5, 'ankle': 0.08}
     local = np.array(
@@ -104,3 +107,38 @@ def test_procrustes_undoes_a_similarity():
     points = np.random.default_rng(4).normal(0, 0.3, (12, 3))
     moved = 1.1 * points @ rot_z(0.7).T + [0.5, -0.2, 0.1]
     assert np.allclose(procrustes(moved, points), points, atol=1e-9)
+
+
+def test_procrustes_is_fitted_per_frame_on_the_joints_present():
+    rng = np.random.default_rng(5)
+    points = rng.normal(0, 0.3, (3, 12, 3))
+    moved = np.stack([(1.0 + 0.1 * f) * p @ rot_z(0.4 * f).T + [f, 0.0, 0.0]
+                      for f, p in enumerate(points)])  # fmt: skip
+    weight = np.ones((3, 12))
+    weight[1, 5] = 0.0
+    moved[1, 5] += 5.0  # a wild joint that is marked missing does not pull the fit
+    aligned = procrustes(moved, points, weight)
+    assert np.allclose(np.delete(aligned[1], 5, 0), np.delete(points[1], 5, 0), atol=1e-9)
+    assert np.allclose(aligned[[0, 2]], points[[0, 2]], atol=1e-9)
+    mirrored = points[0] * [1.0, -1.0, 1.0]  # no rotation turns a body into its mirror image
+    assert np.abs(procrustes(mirrored, points[0]) - points[0]).max() > 0.05
+
+
+def test_a_reference_joint_that_jumps_for_two_frames_is_flagged():
+    frames = 30
+    track = np.zeros((frames, 2, 3))
+    track[:, :, 0] = np.linspace(0.0, 1.5, frames)[:, None]  # walking at 3 m/s (60 frames/s)
+    track[:, 1, 2] = 1.0 + 0.2 * np.sin(np.linspace(0, 6, frames))  # a swinging wrist
+    track[[10, 11], 1] += [0.0, 0.8, -0.5]  # two frames of the other limb
+    track[20, 0] = np.nan  # not seen
+    flagged = temporal_outliers(track)
+    assert flagged[[10, 11], 1].all() and flagged.sum() == 2
+
+
+def test_a_track_missing_joints_is_compared_on_those_present():
+    reference = np.stack([_standing(0.0)] * 4)
+    reference[2, JOINTS.index('wrist_r')] = np.nan
+    result = compare(reference + [0.0, 0.0, 0.05], reference)
+    assert np.isnan(result.raw_mm[2, JOINTS.index('wrist_r')])
+    assert np.nanmean(result.raw_mm) == pytest.approx(50.0)
+    assert np.nanmax(result.procrustes_mm) < 1e-6 and result.sides_agree.all()

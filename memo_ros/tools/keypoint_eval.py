@@ -3,13 +3,16 @@
 The detector runs on every camera's images (:mod:`memo_ros.tools.keypoints`),
 its keypoints are triangulated over the calibrated cameras as Pose2Sim does
 (:mod:`memo_ros.core.evaluation.triangulation`), and the track's joint centres
-are compared with them (:mod:`memo_ros.core.evaluation.keypoints`).
+are compared with them (:mod:`memo_ros.core.evaluation.keypoints`).  Reference
+points that jump away from their joint's running median (two views agreeing on
+the wrong limb) are left out of the errors and counted.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+import warnings
 
 import numpy as np
 
@@ -20,11 +23,16 @@ from memo_ros.core.evaluation.keypoints import (
     heading,
     model_joints,
 )
-from memo_ros.core.evaluation.triangulation import Triangulation, triangulate
+from memo_ros.core.evaluation.triangulation import (
+    Triangulation,
+    temporal_outliers,
+    triangulate,
+)
 from memo_ros.tools.keypoints import KEYPOINT_NAMES, Detections, detect
 
 MAX_ERROR_PX = 15.0  # Pose2Sim's default reprojection threshold is 15 px on full-size images
 MIN_CONFIDENCE = 0.3
+MAX_JUMP_M = 0.25  # from the joint's median over 5 frames: no limb gets there and back so fast
 
 
 @dataclass
@@ -36,6 +44,7 @@ class KeypointReport:
     comparison: KeypointComparison
     stamps: np.ndarray
     nose_in_front: float  # fraction of frames where the reference's nose is ahead of its shoulders
+    rejected: np.ndarray  # (F, J) bool: reference points left out as jumps (temporal_outliers)
 
     def summary(self) -> dict:
         """Return the comparison's figures with the reference's own quality."""
@@ -45,6 +54,10 @@ class KeypointReport:
             name: float(np.nanmean(error[:, k])) for k, name in enumerate(JOINTS)
         }
         out['reference_nose_in_front_fraction'] = self.nose_in_front
+        out['reference_points'] = int(np.isfinite(self.reference.points[..., 0]).sum())
+        out['reference_points_rejected'] = int(self.rejected.sum())
+        out['reference_max_reprojection_px'] = MAX_ERROR_PX
+        out['reference_max_jump_m'] = MAX_JUMP_M
         out['cameras'] = self.detections.cameras
         return out
 
@@ -88,12 +101,14 @@ def evaluate_keypoints(
         np.stack([np.cos(facing), np.sin(facing)], -1),
     )
     seen = np.isfinite(ahead)
+    rejected = temporal_outliers(reference.points, max_deviation_m=MAX_JUMP_M)
     return KeypointReport(
         detections,
         reference,
-        compare(estimate, reference.points),
+        compare(estimate, np.where(rejected[..., None], np.nan, reference.points)),
         stamps,
         float((ahead[seen] > 0).mean()) if seen.any() else float('nan'),
+        rejected,
     )
 
 
@@ -122,10 +137,16 @@ def print_keypoint_report(report: KeypointReport) -> None:
         f'max {s["heading_error_deg_max"]:.1f} deg'
     )
     print(
-        f'{"reference":<28} mediapipe BlazePose (full) on {len(s["cameras"])} cameras, '
-        f'nose ahead of the shoulders in {100 * s["reference_nose_in_front_fraction"]:.0f} % '
-        'of frames'
+        f'{"reference":<28} BlazePose (full), {len(s["cameras"])} cameras, nose ahead of '
+        f'shoulders in {100 * s["reference_nose_in_front_fraction"]:.0f} % of frames'
     )
+    print(
+        f'{"reference points":<28} {s["reference_points"]}, '
+        f'{s["reference_points_rejected"]} left out as jumps (> {MAX_JUMP_M:g} m off a 5-frame '
+        'median)'
+    )
+    print(f'{"reference cameras":<28} a camera over {MAX_ERROR_PX:g} px dropped while > 2 remain')
+    print(f'{"Procrustes":<28} per frame: rotation, translation and scale')
 
 
 def write_keypoint_per_frame(path: Path, report: KeypointReport) -> None:
@@ -133,13 +154,25 @@ def write_keypoint_per_frame(path: Path, report: KeypointReport) -> None:
     c = report.comparison
     lines = [
         'stamp_ns,mpjpe_raw_mm,mpjpe_offset_removed_mm,mpjpe_procrustes_mm,'
-        'mpjpe_swapped_mm,sides_agree,heading_error_deg'
+        'mpjpe_swapped_mm,sides_agree,heading_error_deg,reference_reprojection_px,'
+        'reference_points_rejected'
     ]
+    with warnings.catch_warnings():
+        warnings.filterwarnings('ignore', 'Mean of empty slice', RuntimeWarning)
+        reprojection = np.nanmean(report.reference.error_px, 1)
+        rows = np.stack(
+            [
+                np.nanmean(c.raw_mm, 1),
+                np.nanmean(c.offset_removed_mm, 1),
+                np.nanmean(c.procrustes_mm, 1),
+                c.swapped_mm,
+            ],
+            1,
+        )
     for f, stamp in enumerate(report.stamps):
         lines.append(
-            f'{int(stamp)},{np.nanmean(c.raw_mm[f]):.2f},{np.nanmean(c.offset_removed_mm[f]):.2f},'
-            f'{np.nanmean(c.procrustes_mm[f]):.2f},{c.swapped_mm[f]:.2f},'
-            f'{int(c.sides_agree[f])},{c.heading_error_deg[f]:.2f}'
+            f'{int(stamp)},' + ','.join(f'{v:.2f}' for v in rows[f]) + f',{int(c.sides_agree[f])},'
+            f'{c.heading_error_deg[f]:.2f},{reprojection[f]:.2f},{int(report.rejected[f].sum())}'
         )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text('\n'.join(lines) + '\n', encoding='utf-8')

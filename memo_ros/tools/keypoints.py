@@ -2,8 +2,18 @@
 
 The detector's weights ship inside the mediapipe wheel (``pip install
 memo_ros[keypoints]``); nothing is downloaded at run time, and no node
-imports this module.  Detections are cached beside the estimate, keyed by the
-recording, so a second evaluation is fast.
+imports this module.  Only model complexity 1 ('full') is in the 0.10.14
+wheel: 0 ('lite') and 2 ('heavy') would be fetched from the web.  Detections
+are cached beside the estimate, keyed by the recording, so a second
+evaluation is fast.
+
+mediapipe 0.10.14 requires opencv-contrib-python, jax, jaxlib and sounddevice,
+none of which BlazePose needs here; opencv-contrib-python also installs a
+second ``cv2`` (a GUI build wanting libGL) over opencv-python-headless's.
+``scripts/setup.sh`` therefore installs it as::
+
+    pip install -c constraints.txt -e '.[test]'
+    pip install --no-deps -c constraints.txt mediapipe absl-py attrs flatbuffers protobuf
 """
 
 from __future__ import annotations
@@ -34,7 +44,10 @@ class KeypointsUnavailable(RuntimeError):
 
 @dataclass
 class Detections:
-    """Keypoints of every camera and frame: pixels (C, F, K, 2), confidence (C, F, K), stamps (F,)."""
+    """Keypoints of every camera and frame.
+
+    Pixels (C, F, K, 2), confidence (C, F, K), stamps (F,).
+    """
 
     cameras: list[str]
     stamps: np.ndarray
@@ -69,7 +82,10 @@ def _native_logs_quiet() -> Iterator[None]:
 
 
 def _pose_estimator():
-    """Return a mediapipe Pose in image mode (one detection per picture), or explain how to get it."""
+    """Return a mediapipe Pose in image mode (one detection per picture).
+
+    Raise :class:`KeypointsUnavailable` saying how to install it when it is missing.
+    """
     try:
         from mediapipe.python.solutions.pose import Pose
     except ImportError as exc:

@@ -85,16 +85,28 @@ def heading(joints: np.ndarray) -> np.ndarray:
     return np.arctan2(forward[..., 1], forward[..., 0])
 
 
-def procrustes(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Return ``estimate`` (J, 3) best aligned to ``reference`` by rotation, translation and scale."""
-    mu_e, mu_r = estimate.mean(0), reference.mean(0)
+def procrustes(
+    estimate: np.ndarray, reference: np.ndarray, weight: np.ndarray | None = None
+) -> np.ndarray:
+    """Return ``estimate`` (..., J, 3) best aligned to ``reference`` by a similarity transform.
+
+    Rotation (no reflection), translation and one isotropic scale, per leading
+    index (frame), fitted by weighted least squares (Umeyama); joints of weight
+    0 (missing) do not count but are moved too.
+    """
+    if weight is None:
+        weight = np.ones(estimate.shape[:-1])
+    w = weight[..., None] / np.maximum(weight.sum(-1), 1e-12)[..., None, None]
+    mu_e = (w * estimate).sum(-2, keepdims=True)
+    mu_r = (w * reference).sum(-2, keepdims=True)
     e, r = estimate - mu_e, reference - mu_r
-    u, s, vt = np.linalg.svd(e.T @ r)
+    u, s, vt = np.linalg.svd(np.swapaxes(w * e, -1, -2) @ r)
     d = np.sign(np.linalg.det(u @ vt))
-    fix = np.diag([1.0, 1.0, d])
-    rotation = u @ fix @ vt
-    scale = (s * np.diag(fix)).sum() / max((e**2).sum(), 1e-12)
-    return scale * e @ rotation + mu_r
+    fix = np.ones(s.shape)
+    fix[..., 2] = np.where(d == 0, 1.0, d)
+    rotation = u @ (fix[..., :, None] * vt)
+    scale = (s * fix).sum(-1) / np.maximum((w * e**2).sum((-1, -2)), 1e-12)
+    return scale[..., None, None] * e @ rotation + mu_r
 
 
 @dataclass
@@ -109,7 +121,10 @@ class KeypointComparison:
     heading_error_deg: np.ndarray  # (F,) signed, in (-180, 180]
 
     def summary(self) -> dict:
-        """Return the figures a user reads: means per joint and overall, side and heading counts."""
+        """Return the figures a user reads: means per joint and overall, side and heading counts.
+
+        Means skip missing joints and frames.
+        """
         per_joint = {
             name: {
                 'raw_mm': float(np.nanmean(self.raw_mm[:, k])),
@@ -134,17 +149,20 @@ class KeypointComparison:
 
 
 def compare(estimate: np.ndarray, reference: np.ndarray) -> KeypointComparison:
-    """Compare model joints (F, 12, 3) with reference joints (F, 12, 3, NaN where missing), metres."""
+    """Compare model joints (F, 12, 3) with reference joints (F, 12, 3), metres.
+
+    Reference joints are NaN where missing.
+    """
     raw = np.linalg.norm(estimate - reference, axis=-1) * 1000.0
     swapped = np.linalg.norm(estimate[:, SWAP] - reference, axis=-1) * 1000.0
     offset = np.nanmean(estimate - reference, axis=0)
     offset_removed = np.linalg.norm(estimate - offset - reference, axis=-1) * 1000.0
-    aligned = np.full(raw.shape, np.nan)
-    for f in range(len(estimate)):  # one small SVD per frame
-        ok = np.all(np.isfinite(reference[f]), -1)
-        if ok.sum() >= 4:
-            fitted = procrustes(estimate[f, ok], reference[f, ok])
-            aligned[f, ok] = np.linalg.norm(fitted - reference[f, ok], axis=-1) * 1000.0
+    ok = np.all(np.isfinite(reference), -1) & np.all(np.isfinite(estimate), -1)  # (F, J)
+    fitted = procrustes(
+        np.where(ok[..., None], estimate, 0.0), np.where(ok[..., None], reference, 0.0), ok * 1.0
+    )
+    aligned = np.linalg.norm(fitted - reference, axis=-1) * 1000.0
+    aligned[~ok | (ok.sum(1) < 4)[:, None]] = np.nan  # a similarity needs 4 joints to say much
     with np.errstate(invalid='ignore'):
         raw_mean = np.nanmean(np.where(np.isfinite(raw), raw, np.nan), axis=1)
         swapped_mean = np.nanmean(swapped, axis=1)

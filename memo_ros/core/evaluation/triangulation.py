@@ -5,20 +5,28 @@ over the cameras that see it, each camera's two equations weighted by the
 detector's confidence, in undistorted normalised coordinates.  While the
 worst camera's reprojection error exceeds a threshold and more than two
 cameras remain, that camera is dropped and the point triangulated again.
+Two cameras that agree on the wrong limb pass that test, so a point that
+leaves its joint's short-term median by more than a body can move in a few
+frames is flagged too (:func:`temporal_outliers`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import warnings
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from memo_ros.core.geometry.camera import Camera
 
 
 @dataclass
 class Triangulation:
-    """3D points (F, J, 3, NaN where too few cameras), their mean reprojection error, cameras used."""
+    """3D points, their mean reprojection error and the cameras used.
+
+    Points are NaN where fewer than two cameras saw the keypoint.
+    """
 
     points: np.ndarray
     error_px: np.ndarray  # (F, J) mean reprojection error over the cameras used, pixels
@@ -101,3 +109,24 @@ def triangulate(
         mean_error.reshape(frames, joints),
         used.reshape(frames, joints, n_cams),
     )
+
+
+def temporal_outliers(
+    points: np.ndarray, window: int = 5, max_deviation_m: float = 0.25
+) -> np.ndarray:
+    """Flag points (F, J, 3) farther than ``max_deviation_m`` from their joint's running median.
+
+    The median is taken over ``window`` frames centred on each frame (edges
+    repeated), per joint and coordinate, so one or two wrong frames in a row
+    cannot move it: a detector that takes a wrist for an elbow in two views
+    gives a point that reprojects well there and still jumps by a metre.
+    Returns (F, J) bool; missing points are not flagged.
+    """
+    half = window // 2
+    padded = np.pad(points, ((half, half), (0, 0), (0, 0)), mode='edge')
+    windows = sliding_window_view(padded, window, axis=0)  # (F, J, 3, window)
+    with warnings.catch_warnings():
+        warnings.filterwarnings('ignore', 'All-NaN slice', RuntimeWarning)  # a joint never seen
+        median = np.nanmedian(windows, axis=-1)
+    deviation = np.linalg.norm(points - median, axis=-1)
+    return np.nan_to_num(deviation, nan=0.0) > max_deviation_m
