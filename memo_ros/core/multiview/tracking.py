@@ -46,6 +46,7 @@ from memo_ros.core.multiview.motion import (
 )
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
+TWIN_CHECK_FRAMES = 3  # frames a decided leader is checked against its twin
 REFERENCE_SPACING_PX = (
     2.0  # the sample spacing the noise parameters refer to (contour_node's contour_step)
 )
@@ -164,6 +165,7 @@ class ArticulatedTracker:
             None  # the start's best twin, from the heading search
         )
         self.evidence = 0.0  # > 0: the leader fits better than its twin (sigma^2 per sample)
+        self.twin_check = False  # the twin is followed only to check a decided leader
         self.twin_age = 0
         self.since_twin = 0  # frames since the twin was last followed
 
@@ -276,7 +278,7 @@ class ArticulatedTracker:
             time.perf_counter() - start,
             '' if consistent else 'inconsistent frame',
             self.heading_confidence,
-            self.twin_ekf is not None,
+            self.undecided,
             self.twin_swaps,
         )
 
@@ -326,6 +328,11 @@ class ArticulatedTracker:
         k = np.log(99.0) / self.settings.twin_evidence  # 0.99 at the deciding evidence
         return float(1.0 / (1.0 + np.exp(-np.clip(k * self.evidence, -50.0, 50.0))))
 
+    @property
+    def undecided(self) -> bool:
+        """Return whether both poses are followed and the evidence is not yet decisive."""
+        return self.twin_ekf is not None and abs(self.evidence) < self.settings.twin_evidence
+
     def _clamp(self, ekf: ArticulatedEKF) -> None:
         """Project a filter's pose into the anatomical ranges.
 
@@ -357,6 +364,9 @@ class ArticulatedTracker:
             if not (start_twin or due or self.bad_frames == 1):  # a run of bad frames: one look
                 return
             self.twin_ekf = self._twin_filter(self.ekf, free)
+            # a look again while decided is a check: the leader keeps its place unless the twin
+            # wins within TWIN_CHECK_FRAMES; a start is a contest until the evidence decides
+            self.twin_check = not start_twin and self.evidence > 0
             if start_twin and self._start_twin is not None:
                 self.twin_ekf.q = self._start_twin
             self.twin_age = 0
@@ -389,7 +399,8 @@ class ArticulatedTracker:
             self.ekf, self.twin_ekf = twin, self.ekf
             self.evidence = -self.evidence
             self.twin_swaps += 1
-        if self.evidence > s.twin_evidence or self.twin_age >= s.twin_max_frames:
+        confirmed = self.twin_check and self.twin_age >= TWIN_CHECK_FRAMES and self.evidence > 0
+        if confirmed or self.evidence > s.twin_evidence or self.twin_age >= s.twin_max_frames:
             self.twin_ekf = None
             self.since_twin = 0
 
