@@ -342,8 +342,7 @@ class ArticulatedTracker:
         for arm in self.anatomy.reflexed_arms(ekf.q):  # exact: the arm does not move
             ekf.q, M = self.anatomy.unreflex(ekf.q, arm)
             ekf.v = M @ ekf.v
-            T = np.kron(np.eye(2), M)
-            ekf.P = T @ ekf.P @ T.T
+            ekf.P = _mapped_covariance(ekf.P, M)
         ekf.q = self.anatomy.clamp(ekf.q)
 
     def _follow_twin(
@@ -405,9 +404,7 @@ class ArticulatedTracker:
             self.since_twin = 0
 
     def _twin_filter(self, ekf: ArticulatedEKF, free: np.ndarray) -> ArticulatedEKF:
-        """Return a filter at the twin of ``ekf``'s state.
-
-        Its covariance carried over by the same map.
+        """Return a filter at the twin of ``ekf``'s state, its covariance carried by the same map.
 
         The twin is taken of ``free``, the pose before the ranges were imposed: a hinge the leader
         had to straighten bends the right way in it.
@@ -416,10 +413,7 @@ class ArticulatedTracker:
         M = self.anatomy.tangent_map()
         twin.q = self.anatomy.twin(free)
         twin.v = M @ ekf.v
-        T = np.zeros((2 * M.shape[0],) * 2)
-        T[: M.shape[0], : M.shape[0]] = M
-        T[M.shape[0] :, M.shape[0] :] = M
-        twin.P = T @ ekf.P @ T.T
+        twin.P = _mapped_covariance(ekf.P, M)
         return twin
 
     def _refit(
@@ -662,6 +656,12 @@ class ArticulatedTracker:
         assert best is not None
         self._start_twin = best[2]
         self.ekf.initialize(best[1], None, sigma_q, sigma_v)
+
+
+def _mapped_covariance(P: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Return the (q, v) covariance ``P`` carried by the tangent map ``M`` applied to both."""
+    T = np.kron(np.eye(2), M)
+    return T @ P @ T.T
 
 
 class FirstOutline:
