@@ -55,6 +55,11 @@ def perspective_jacobian(Pc: np.ndarray, f: float = 1.0) -> np.ndarray:
     )
 
 
+def is_camera_matrix(K: np.ndarray) -> bool:
+    """Return whether a 3x3 K is [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0."""
+    return not (K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != (0.0, 0.0, 1.0)))
+
+
 def _normalise_model(model: str | None, D: np.ndarray) -> tuple[str, np.ndarray]:
     """Canonical distortion model name and D zero-padded to its length."""
     model = (model or '').strip().lower()
@@ -102,7 +107,7 @@ class Camera:
         if K.size != 9:
             raise ValueError(f'camera {self.name!r}: K needs 9 values, got {K.size}')
         K = K.reshape(3, 3)
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or np.any(K[2] != (0.0, 0.0, 1.0)):
+        if not is_camera_matrix(K):
             raise ValueError(
                 f'camera {self.name!r}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] '
                 f'with fx, fy > 0, got {K.tolist()}'
@@ -519,7 +524,7 @@ def intrinsics_problem(
         return f'image size {width}x{height}'
     if k.size != 9 or not np.all(np.isfinite(k)):
         return f'K {k.tolist()} is not 9 finite numbers'
-    if k[0] <= 0 or k[4] <= 0 or k[3] != 0 or tuple(k[6:]) != (0.0, 0.0, 1.0):
+    if not is_camera_matrix(k.reshape(3, 3)):
         return f'K {k.tolist()} is not a camera matrix (positive focal lengths, last row 0 0 1)'
     if not (-0.5 * width <= k[2] <= 1.5 * width and -0.5 * height <= k[5] <= 1.5 * height):
         return f'principal point ({k[2]:g}, {k[5]:g}) far from the {width}x{height} image'
