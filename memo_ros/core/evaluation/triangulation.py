@@ -37,10 +37,7 @@ def normalised(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
     """Return undistorted normalised image coordinates (C, ..., 2) of pixels (C, ..., 2)."""
     out = np.empty(uv.shape, float)
     for c, cam in enumerate(cameras):
-        K = cam.K
-        y = (uv[c, ..., 1] - K[1, 2]) / K[1, 1]
-        x = (uv[c, ..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        out[c] = cam.undistort(np.stack([x, y], -1))
+        out[c] = cam.ideal_coordinates(uv[c, ..., 0], uv[c, ..., 1])
     return out
 
 

@@ -299,16 +299,20 @@ class Camera:
             xy = np.where(better[:, None], cand, xy)
         return xy.reshape(xd.shape)
 
+    def ideal_coordinates(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Return undistorted normalised coordinates (..., 2) of pixels (u, v) (broadcast)."""
+        u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
+        K = self.K
+        yd = (v - K[1, 2]) / K[1, 1]  # K^-1 applied exactly, skew included
+        xd = (u - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+        return self.undistort(np.stack([xd, yd], -1))
+
     def pixel_rays(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Return unit ray directions in world (..., 3) through pixels (u, v) (broadcast).
 
         Undistorted.
         """
-        u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
-        K = self.K
-        yd = (v - K[1, 2]) / K[1, 1]  # K^-1 applied exactly, skew included
-        xd = (u - K[0, 2] - K[0, 1] * yd) / K[0, 0]
-        xy = self.undistort(np.stack([xd, yd], -1))
+        xy = self.ideal_coordinates(u, v)
         d = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
         d /= np.linalg.norm(d, axis=-1, keepdims=True)
         return d @ self.R_world_cam.T
