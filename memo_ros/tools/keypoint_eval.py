@@ -76,22 +76,19 @@ def evaluate_keypoints(
     if not len(stamps):
         raise ValueError('no frame of the estimate has images in every camera')
     rows = np.searchsorted(detections.stamps, stamps)
-    columns = [KEYPOINT_NAMES.index(j) for j in JOINTS]
-    cameras = [studio.camera(c) for c in detections.cameras]
-    reference = triangulate(
-        cameras,
+    # the joints and, last, the nose, in one triangulation (each point is solved on its own)
+    columns = [KEYPOINT_NAMES.index(j) for j in JOINTS] + [KEYPOINT_NAMES.index('nose')]
+    everything = triangulate(
+        [studio.camera(c) for c in detections.cameras],
         detections.uv[:, rows][:, :, columns],
         detections.confidence[:, rows][:, :, columns],
         MIN_CONFIDENCE,
         MAX_ERROR_PX,
     )
-    nose = triangulate(
-        cameras,
-        detections.uv[:, rows][:, :, [KEYPOINT_NAMES.index('nose')]],
-        detections.confidence[:, rows][:, :, [KEYPOINT_NAMES.index('nose')]],
-        MIN_CONFIDENCE,
-        MAX_ERROR_PX,
-    ).points[:, 0]
+    reference = Triangulation(
+        everything.points[:, :-1], everything.error_px[:, :-1], everything.used[:, :-1]
+    )
+    nose = everything.points[:, -1]
     estimate = model_joints(np.stack([origins[int(s)] for s in stamps]))
     shoulders = reference.points[:, [JOINTS.index('shoulder_l'), JOINTS.index('shoulder_r')]]
     facing = heading(reference.points)
