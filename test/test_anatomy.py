@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body, other_side
 from memo_ros.core.geometry.render import render
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
 from memo_ros.core.multiview.anatomy import JOINT_LIMITS, Anatomy, facing
@@ -18,10 +18,7 @@ from memo_ros.core.vision.contours import occluding_contours, silhouette_outline
 
 BODY = load_default_body()
 ANATOMY = Anatomy(BODY)
-SWAPPED = [
-    PART_NAMES.index(p.replace('_l', '_X').replace('_r', '_l').replace('_X', '_r'))
-    for p in PART_NAMES
-]
+SWAPPED = [PART_NAMES.index(other_side(p)) for p in PART_NAMES]
 
 
 def _bent_pose(heading_deg: float) -> np.ndarray:

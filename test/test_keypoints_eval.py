@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from memo_ros.core.evaluation.keypoints import JOINTS, MODEL_PART
+from memo_ros.core.evaluation.keypoints import JOINTS, MODEL_PART, SWAP
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import PART_NAMES
 from memo_ros.ros.bagio import BagWriter, pose_array_msg
@@ -90,10 +90,8 @@ def test_the_cli_tells_a_track_on_the_right_sides_from_one_turned_round(recordin
     detections = detect(recording, studio.camera_names)
     origins = {int(s): np.zeros((len(PART_NAMES), 3)) for s in detections.stamps}
     reference = evaluate_keypoints(recording, origins, studio, None).reference.points
-    swap = [JOINTS.index(j.replace('_l', '_X').replace('_r', '_l').replace('_X', '_r'))
-            for j in JOINTS]  # fmt: skip
     _estimate_bag(tmp_path / 'right', detections.stamps, reference + [0.0, 0.0, 0.02])
-    _estimate_bag(tmp_path / 'swapped', detections.stamps, reference[:, swap])
+    _estimate_bag(tmp_path / 'swapped', detections.stamps, reference[:, SWAP])
     right = _cli('evaluate', '--keypoints', '--images', recording, '--estimate',
                  tmp_path / 'right', '--json')  # fmt: skip
     assert right.returncode == 0, right.stderr

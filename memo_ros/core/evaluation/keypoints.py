@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from memo_ros.core.geometry.body import PART_NAMES
+from memo_ros.core.geometry.body import PART_NAMES, other_side
 
 # the model's joint centres compared (part origins) and the keypoints standing for them
 JOINTS: tuple[str, ...] = (
@@ -63,9 +63,7 @@ BLAZEPOSE = {
     'ankle_l': 27,
     'ankle_r': 28,
 }
-SWAP = [
-    JOINTS.index(j.replace('_l', '_X').replace('_r', '_l').replace('_X', '_r')) for j in JOINTS
-]
+SWAP = [JOINTS.index(other_side(j)) for j in JOINTS]  # each joint's twin on the other side
 
 
 def model_joints(origins: np.ndarray) -> np.ndarray:

@@ -334,6 +334,15 @@ def lowest_point(
     return np.minimum(*lows)
 
 
+def other_side(name: str) -> str:
+    """Return the same part or joint on the body's other side (itself on the midline)."""
+    if name.endswith('_l'):
+        return name[:-2] + '_r'
+    if name.endswith('_r'):
+        return name[:-2] + '_l'
+    return name
+
+
 def load_default_body() -> Body:
     """Return the shipped average adult (config/body_average_adult.yaml)."""
     from memo_ros.paths import config_path

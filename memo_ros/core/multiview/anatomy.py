@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from memo_ros.core.geometry.body import JOINT_TREE, ROOT_COORDINATES, Body
+from memo_ros.core.geometry.body import JOINT_TREE, ROOT_COORDINATES, Body, other_side
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z, rotvec_to_matrix
 
@@ -74,7 +74,7 @@ class Anatomy:
             if name in ROOT_COORDINATES:
                 continue
             joint, axis = name.rsplit('_', 1)
-            other = _other_side(joint)
+            other = other_side(joint)
             self.twin_source[k] = names.index(f'{other}_{axis}')
             self.twin_sign[k] = TWIN_SIGN[axis]
 
@@ -150,15 +150,6 @@ class Anatomy:
         M[np.arange(self.n), self.twin_source] = self.twin_sign
         M[3:6, 3:6] = np.diag([-1.0, -1.0, 1.0])
         return M
-
-
-def _other_side(joint: str) -> str:
-    """Return the joint on the body's other side (itself for the neck)."""
-    if joint.endswith('_l'):
-        return joint[:-2] + '_r'
-    if joint.endswith('_r'):
-        return joint[:-2] + '_l'
-    return joint
 
 
 def facing(body: Body, q: np.ndarray) -> np.ndarray:
