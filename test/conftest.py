@@ -5,12 +5,14 @@ An isolated DDS environment per test and a runner for `memo-ros` in subprocesses
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 from pathlib import Path
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 
 import pytest
@@ -19,12 +21,38 @@ ROOT = Path(__file__).resolve().parent.parent
 _serial = itertools.count()
 
 
-def next_domain_id() -> int:
-    """Return a ROS_DOMAIN_ID in 1..100.
+DOMAIN_LOCKS = Path(tempfile.gettempdir()) / 'memo_ros_test_domains'
+_held: dict[int, int] = {}  # domain id -> open lock file descriptor
 
-    Different for each test of a run and offset by the pid across runs.
+
+def next_domain_id() -> int:
+    """Reserve and return a ROS_DOMAIN_ID in 1..100 that no other test run on this host holds.
+
+    Each domain is locked (flock) until ``release_domain_id``, so concurrent suites (a CI job
+    beside a developer's run) never share a domain and never see each other's nodes.
     """
-    return 1 + (os.getpid() + next(_serial)) % 100
+    DOMAIN_LOCKS.mkdir(exist_ok=True)
+    start = os.getpid() + next(_serial)
+    for k in range(100):
+        domain_id = 1 + (start + k) % 100
+        if domain_id in _held:
+            continue
+        fd = os.open(DOMAIN_LOCKS / f'{domain_id}.lock', os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        _held[domain_id] = fd
+        return domain_id
+    raise RuntimeError('all ROS domains 1..100 are held by other test runs on this host')
+
+
+def release_domain_id(domain_id: int) -> None:
+    """Give a domain reserved by ``next_domain_id`` back."""
+    fd = _held.pop(domain_id, None)
+    if fd is not None:
+        os.close(fd)  # closing the descriptor drops the lock
 
 
 class RosEnv(dict):
@@ -91,7 +119,7 @@ class RosEnv(dict):
         return subprocess.CompletedProcess(process.args, process.returncode, out, err)
 
     def kill_all(self) -> None:
-        """Stop every process started here that still runs, and collect its output.
+        """Stop every process started here that still runs, collect its output, free the domain.
 
         SIGINT first, so a `memo-ros launch` stops the nodes it started in their own sessions
         (a SIGKILL would leave them running, orphaned, on this test's domain); SIGKILL after 10 s.
@@ -108,6 +136,7 @@ class RosEnv(dict):
         for process in self.processes:
             if not (process.stdout and process.stdout.closed):  # not collected by the test already
                 process.communicate()
+        release_domain_id(self.domain_id)
 
 
 @pytest.fixture
