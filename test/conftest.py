@@ -70,6 +70,9 @@ class RosEnv(dict):
             [str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p]
         )
         self['PYTHONUNBUFFERED'] = '1'
+        # marks every process of this environment, so ones that outlive it can be found
+        self.token = f'{os.getpid()}.{domain_id}.{next(_serial)}'
+        self['MEMO_ROS_TEST_ENV'] = self.token
         self.processes: list[subprocess.Popen] = []
 
     def command(self, *args) -> list[str]:
@@ -136,7 +139,30 @@ class RosEnv(dict):
         for process in self.processes:
             if not (process.stdout and process.stdout.closed):  # not collected by the test already
                 process.communicate()
+        orphans = self.kill_orphans()
         release_domain_id(self.domain_id)
+        assert not orphans, (
+            f'processes outlived their launcher on domain {self.domain_id}: {orphans}'
+        )
+
+    def kill_orphans(self) -> list[str]:
+        """SIGKILL processes of this environment that outlived the ones started here.
+
+        A node orphaned by its launcher would otherwise talk to a later test on the same domain.
+        Returns their command lines.
+        """
+        marker = f'MEMO_ROS_TEST_ENV={self.token}'.encode()
+        found = []
+        for entry in Path('/proc').glob('[0-9]*'):
+            try:
+                if marker not in (entry / 'environ').read_bytes().split(b'\0'):
+                    continue
+                cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode()
+                os.kill(int(entry.name), signal.SIGKILL)
+            except (OSError, ValueError):
+                continue  # gone meanwhile, or not ours to read
+            found.append(cmdline.strip())
+        return found
 
 
 @pytest.fixture
