@@ -8,6 +8,7 @@ from __future__ import annotations
 import subprocess
 import time
 
+import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -177,86 +178,115 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
         assert node_process.poll() is None
 
 
+def _background_frame(pixels: np.ndarray, sec: int) -> Image:
+    msg = Image(encoding='mono8', width=64, height=48, step=64, data=pixels.tobytes())
+    msg.header.stamp.sec = sec
+    return msg
+
+
+def _background_info(sec: int) -> CameraInfo:
+    msg = CameraInfo(width=64, height=48, distortion_model='plumb_bob')
+    msg.header.stamp.sec = sec
+    return msg
+
+
+def _run_background_node(ros_env, params, frames, first_sec: int) -> tuple[dict, list]:
+    """Start a 64x48 contour_node, feed it frames (None: a lost image) with a camera_info each.
+
+    Stop it; return its /diagnostics values and its contour clouds.
+    """
+    process = _start_node(ros_env, 'cam_bg', *params)
+    values: dict[str, str] = {}
+    contours = []
+    try:
+        with ros_session('background_feeder', ros_env.domain_id) as (node, executor):
+            image_pub = node.create_publisher(Image, '/cam_bg/image_raw', 10)
+            info_pub = node.create_publisher(CameraInfo, '/cam_bg/camera_info', 10)
+            node.create_subscription(PointCloud2, '/cam_bg/contours', contours.append, 100)
+
+            def on_diagnostics(msg: DiagnosticArray) -> None:
+                for status in msg.status:
+                    if status.hardware_id == 'cam_bg':
+                        values.update({kv.key: kv.value for kv in status.values})
+
+            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+            deadline = time.monotonic() + 15
+            while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+                executor.spin_once(timeout_sec=0.1)
+                assert time.monotonic() < deadline, 'contour_node did not appear'
+            time.sleep(1.0)
+            for k, pixels in enumerate(frames):
+                info_pub.publish(_background_info(first_sec + k))
+                if pixels is not None:
+                    image_pub.publish(_background_frame(pixels, first_sec + k))
+                end = time.monotonic() + 0.15
+                while time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.05)
+            end = time.monotonic() + 15
+            while (
+                int(values.get('processed', 0)) < sum(f is not None for f in frames)
+                and time.monotonic() < end
+            ):
+                executor.spin_once(timeout_sec=0.1)
+            time.sleep(1.1)
+            end = time.monotonic() + 2
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.1)
+    finally:
+        process.send_signal(2)
+        process.communicate(timeout=15)
+    return values, contours
+
+
+def _scene() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    empty = rng.integers(90, 110, (48, 64), dtype=np.uint8)
+    person = empty.copy()
+    person[10:40, 20:34] = 200
+    return empty, person
+
+
 def test_lost_images_are_counted_and_a_restarted_node_reuses_its_saved_background(
     ros_env, tmp_path
 ):
     background_file = tmp_path / 'cam_bg_background.png'
     params = ('background_frames:=3', f'background_file:={background_file}', 'min_region_area:=20')
-    rng = np.random.default_rng(0)
-    empty = rng.integers(90, 110, (48, 64), dtype=np.uint8)
-    person = empty.copy()
-    person[10:40, 20:34] = 200
-
-    def image(pixels: np.ndarray, sec: int) -> Image:
-        msg = Image(encoding='mono8', width=64, height=48, step=64, data=pixels.tobytes())
-        msg.header.stamp.sec = sec
-        return msg
-
-    def info(sec: int) -> CameraInfo:
-        msg = CameraInfo(width=64, height=48, distortion_model='plumb_bob')
-        msg.header.stamp.sec = sec
-        return msg
-
-    def run_node(frames, first_sec: int) -> tuple[dict, list]:
-        """Start the node, feed (pixels or None for a lost image) frames with a camera_info each.
-
-        Stop it.
-        """
-        process = _start_node(ros_env, 'cam_bg', *params)
-        values: dict[str, str] = {}
-        contours = []
-        try:
-            with ros_session('background_feeder', ros_env.domain_id) as (node, executor):
-                image_pub = node.create_publisher(Image, '/cam_bg/image_raw', 10)
-                info_pub = node.create_publisher(CameraInfo, '/cam_bg/camera_info', 10)
-                node.create_subscription(PointCloud2, '/cam_bg/contours', contours.append, 100)
-
-                def on_diagnostics(msg: DiagnosticArray) -> None:
-                    for status in msg.status:
-                        if status.hardware_id == 'cam_bg':
-                            values.update({kv.key: kv.value for kv in status.values})
-
-                node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
-                deadline = time.monotonic() + 15
-                while (
-                    image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1
-                ):
-                    executor.spin_once(timeout_sec=0.1)
-                    assert time.monotonic() < deadline, 'contour_node did not appear'
-                time.sleep(1.0)
-                for k, pixels in enumerate(frames):
-                    info_pub.publish(info(first_sec + k))
-                    if pixels is not None:
-                        image_pub.publish(image(pixels, first_sec + k))
-                    end = time.monotonic() + 0.15
-                    while time.monotonic() < end:
-                        executor.spin_once(timeout_sec=0.05)
-                end = time.monotonic() + 15
-                while (
-                    int(values.get('processed', 0)) < sum(f is not None for f in frames)
-                    and time.monotonic() < end
-                ):
-                    executor.spin_once(timeout_sec=0.1)
-                time.sleep(1.1)
-                end = time.monotonic() + 2
-                while time.monotonic() < end:
-                    executor.spin_once(timeout_sec=0.1)
-        finally:
-            process.send_signal(2)
-            process.communicate(timeout=15)
-        return values, contours
+    empty, person = _scene()
 
     # first run: learns the empty scene, saves it; two images never arrive (their camera_info does)
-    values, contours = run_node([empty, empty, empty, person, None, person, None, person], 1)
+    values, contours = _run_background_node(
+        ros_env, params, [empty, empty, empty, person, None, person, None, person], 1
+    )
     assert background_file.is_file()
     assert int(values['dropped.image_lost']) == 2, values
     assert int(values['processed']) == 6 and int(values['warming_up']) == 3, values
     assert len(pointcloud_to_array(contours[-1])) > 20
     # restarted with the person in view: the saved background is used, no learning, contours at
     # once
-    values, contours = run_node([person, person], 20)
+    values, contours = _run_background_node(ros_env, params, [person, person], 20)
     assert 'warming_up' not in values, values
     assert len(contours) == 2 and all(len(pointcloud_to_array(c)) > 20 for c in contours)
+
+
+def test_a_background_with_the_person_in_it_is_neither_saved_nor_loaded(ros_env, tmp_path):
+    background_file = tmp_path / 'cam_bg_background.png'
+    params = ('background_frames:=3', f'background_file:={background_file}', 'min_region_area:=20')
+    empty, person = _scene()
+    moved = empty.copy()
+    moved[10:40, 30:44] = 200  # the person stepped aside while the background was learnt
+
+    # learnt while the person stood in view and moved: used, not saved
+    values, _ = _run_background_node(ros_env, params, [person, moved, person, person], 1)
+    assert not background_file.exists()
+    assert int(values['background_not_saved']) == 1, values
+    assert int(values['processed']) == 4 and int(values['warming_up']) == 3, values
+
+    # a picture with the person in it, left where the background would be: refused, learnt anew
+    cv2.imwrite(str(background_file), person)
+    values, _ = _run_background_node(ros_env, params, [empty, empty, empty, person], 20)
+    assert int(values['background_refused']) == 1, values
+    assert int(values['warming_up']) == 3, values
+    assert background_file.with_name(background_file.name + '.yaml').is_file()  # relearnt, saved
 
 
 def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_env, tmp_path):

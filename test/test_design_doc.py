@@ -96,3 +96,16 @@ def test_every_relative_link_of_the_readme_and_docs_resolves():
 
 def test_the_readme_stays_one_page():
     assert len((ROOT / 'README.md').read_text(encoding='utf-8').splitlines()) <= 300
+
+
+@pytest.mark.parametrize('node', ['contour_node', 'selector_node', 'tracker_node', 'walker_node'])
+def test_each_node_parameter_table_in_the_docs_is_the_declared_one(node):
+    from memo_ros.ros.params import markdown_table
+
+    table = markdown_table(importlib.import_module(f'memo_ros.nodes.{node}').PARAMS)
+    section = (ROOT / 'docs' / 'nodes.md').read_text().split(f'\n## {node}')[1].split('\n## ')[0]
+    documented = '\n'.join(line for line in section.splitlines() if line.startswith('| `'))
+    declared = '\n'.join(table.splitlines()[2:])
+    assert declared in documented, (
+        f'docs/nodes.md ## {node}: regenerate its table with memo_ros.ros.params.markdown_table'
+    )

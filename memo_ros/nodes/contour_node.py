@@ -19,11 +19,9 @@ taken before) at start-up instead of from the first live frames.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import os
 from pathlib import Path
 import sys
 
-import cv2
 from geometry_msgs.msg import Point32, PolygonStamped
 import numpy as np
 from rclpy.node import Node
@@ -31,6 +29,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import MarkerArray
 
+from memo_ros.core.formats.background_file import (
+    BackgroundFileError,
+    BackgroundRecord,
+    load_background,
+    save_background,
+)
 from memo_ros.core.vision.background import BackgroundModel, background_from_frames
 from memo_ros.core.vision.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.vision.encodings import ImageFormatError
@@ -134,6 +138,15 @@ PARAMS = (
         'PNG where the learnt background is saved and, when it exists at start, loaded '
         'from instead of learning (a restarted node must not learn the person into it); empty: '
         'off',
+        read_only=True,
+    ),
+    Param(
+        'background_max_moved',
+        200,
+        'background_file: a background in whose learning frames this many pixels moved (a '
+        'person in view) is used but not saved, and such a file is refused at load, pixels',
+        1,
+        10_000_000,
         read_only=True,
     ),
     Param(
@@ -456,41 +469,57 @@ class ContourNode(Node):
 
     # ------------------------------------------------------------ learnt background on disk
     def _load_background(self) -> None:
-        """Start from the saved background when there is one (the node was restarted mid-session)."""
+        """Start from the saved background when there is one (the node was restarted mid-session).
+
+        Only a background learnt from an empty scene is used: one with a person in it, or with no
+        record of how it was learnt, is refused in one line and the node learns anew.
+        """
+        self._body_seen_while_learning = False
         path = self.params['background_file']
         if not path or not Path(path).is_file() or self.params['segmenter'] != 'background':
             return
-        background = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-        if background is None:
-            self.health.note(
-                'background_unreadable',
-                f'background_file {path} is not a readable image: learning',
-            )
+        size = (self.camera.width, self.camera.height) if self.camera is not None else (None, None)
+        try:
+            background, record = load_background(path, *size)
+        except BackgroundFileError as exc:
+            self.health.warn('background_refused', f'background_file refused: {exc}; learning')
             return
         self.pipeline.set_background(background)
         self._saved_background = self.pipeline.background
         self.get_logger().info(
-            f'background loaded from {path} ({background.shape[1]}x{background.shape[0]})'
+            f'background loaded from {path} ({record.width}x{record.height}, learnt from '
+            f'{record.frames} frames of the empty scene)'
         )
 
     def _save_background(self) -> None:
-        """Write the freshly learnt background (atomically) so a restart can load it."""
+        """Write the freshly learnt background, with its record, so a restart can load it.
+
+        Not when a person was in view while it was learnt: it is used for this session only.
+        """
         path, background = self.params['background_file'], self.pipeline.background
         self._saved_background = background
         if not path or background is None:
             return
-        tmp = f'{path}.tmp.png'
+        record = BackgroundRecord(
+            camera=self.camera_name,
+            width=int(background.shape[1]),
+            height=int(background.shape[0]),
+            frames=int(self.params['background_frames']),
+            moved_pixels=self.pipeline.moved_while_learning,
+            tracked_body_in_view=self._body_seen_while_learning,
+            max_moved_pixels=int(self.params['background_max_moved']),
+        )
         try:
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
-            if not cv2.imwrite(tmp, background):
-                raise OSError('cv2.imwrite failed')
-            os.replace(tmp, path)
+            save_background(path, background, record)
+        except BackgroundFileError as exc:
+            self.health.warn('background_not_saved', f'learnt background {exc} (kept for now)')
+            return
         except OSError as exc:
             self.health.note(
                 'background_not_saved', f'could not save the background to {path}: {exc}'
             )
             return
-        self.get_logger().info(f'background learnt and saved to {path}')
+        self.get_logger().info(f'background learnt from an empty scene and saved to {path}')
 
     # ------------------------------------------------------------ inputs
     def _on_camera_info(self, msg: CameraInfo) -> None:
@@ -593,7 +622,10 @@ class ContourNode(Node):
 
     def _segment(self, msg: Image, image: np.ndarray, stamp: int) -> None:
         """Segment one accepted image within the tracked region and publish its contours."""
-        self.pipeline.set_roi(self._tracked_region(stamp, image.shape[:2]))
+        roi = self._tracked_region(stamp, image.shape[:2])
+        self.pipeline.set_roi(roi)
+        if self.pipeline.background is None and roi is not None and roi.any():
+            self._body_seen_while_learning = True  # this background is not of an empty scene
         # edge lines only for a listener (Rohr's walker, a recorder): the studio's tracker has none
         listened = self.pub_edges.get_subscription_count() > 0
         result = self.pipeline.process(image, edges=listened)

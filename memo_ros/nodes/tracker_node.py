@@ -222,26 +222,28 @@ PARAMS: tuple[Param, ...] = (
     Param(
         'twin_evidence',
         1.0,
-        'evidence (contour misfit difference, sigma^2 per sample) that decides between the pose '
-        'and its twin (turned 180 degrees, sides swapped); 0 never follows the twin',
+        'evidence (robust contour misfit difference, sigma^2 per sample, with memory 0.9 per '
+        'frame) that decides between the pose and its twin (turned 180 degrees, sides swapped); '
+        '0 never follows the twin',
         0.0,
         100.0,
     ),
     Param(
         'twin_recheck',
         30,
-        'frames between two looks at the twin once decided (0: only at (re)initialisation and '
-        'inconsistent frames)',
+        'frames between two looks at the twin once decided (0: only at a start from the '
+        'silhouettes and at inconsistent frames)',
         0,
         100000,
     ),
     Param(
         'max_lag',
         1.0,
-        'frames are tracked in order, but one older than the newest complete frame by more than '
-        'this (stamp time) is skipped (counted skipped_behind): the latency bound when the '
-        'update is slower than '
-        'the cameras; 0 tracks only the newest, a large value every frame',
+        'the live latency policy: frames are tracked in order, but one older than the newest '
+        'complete frame by more than this (stamp time) is skipped (counted skipped_behind, '
+        'reported skipped on /memo/processed) and the filter predicts through it; 0 tracks only '
+        'the newest, a large value every frame (memo-ros launch --reliable-images, and so '
+        'memo-ros replay, set 3600 s)',
         0.0,
         3600.0,
     ),

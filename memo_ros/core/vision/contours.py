@@ -245,6 +245,12 @@ class ContourPipeline:
         method = self.segmenter.method
         return method.background if isinstance(method, BackgroundSegmenter) else None
 
+    @property
+    def moved_while_learning(self) -> int:
+        """Pixels that moved in the frames the background was learnt from (0 when given)."""
+        method = self.segmenter.method
+        return method.moved_pixels if isinstance(method, BackgroundSegmenter) else 0
+
     def set_roi(self, roi: np.ndarray | None) -> None:
         """Where the tracked body is expected (bool (H, W)).
 

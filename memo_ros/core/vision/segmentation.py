@@ -184,6 +184,7 @@ class BackgroundSegmenter:
     def reset(self) -> None:
         """Forget the background and learn it again from the next N frames."""
         self.background: np.ndarray | None = None
+        self.moved_pixels = 0  # see moved_pixels(): 0 for a given background
         self._scaled: np.ndarray | None = None
         self._learning: np.ndarray | None = None
         self._count = 0
@@ -191,6 +192,7 @@ class BackgroundSegmenter:
     def set_background(self, background: np.ndarray) -> None:
         """Use a given background (e.g. a picture of the empty studio) instead of learning one."""
         self.background = np.ascontiguousarray(background, np.uint8).copy()
+        self.moved_pixels = 0
         self._scaled = None
         self._learning, self._count = None, 0
 
@@ -230,8 +232,27 @@ class BackgroundSegmenter:
             # per-pixel median: a person covering a pixel in fewer than half the frames is voted
             # out
             self.background = np.median(self._learning, axis=0).round().astype(np.uint8)
+            self.moved_pixels = moved_pixels(self._learning, self.background)
             self._learning = None
         return None
+
+
+def moved_pixels(
+    frames: np.ndarray, background: np.ndarray, change: float = 20.0, min_area: int = 50
+) -> int:
+    """Pixels where something moved while the background was learnt (its largest frame's count).
+
+    A frame's pixels that differ from the learnt median by more than ``change`` grey levels, in
+    regions of at least ``min_area`` pixels: a person in view moves and so shows here, and the
+    parts of him that stood still are in the median.
+    """
+    most = 0
+    for frame in frames:
+        moved = (cv2.absdiff(frame, background) > change).view(np.uint8)
+        n, _, stats, _ = cv2.connectedComponentsWithStats(moved, connectivity=8)
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        most = max(most, int(areas[areas >= min_area].sum()))
+    return most
 
 
 def refine_boundary(
