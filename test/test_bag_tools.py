@@ -228,8 +228,14 @@ def test_play_and_record_refuse_bad_requests(ros_env, test_bag):
                 )
             ),
         )
+    mislabelled = bag.parent / 'mislabelled'  # images whose metadata says camera_info
+    with Writer(mislabelled, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection('/cam/image_raw', 'sensor_msgs/msg/CameraInfo', typestore=TS)
+        image = bytes(TS.serialize_cdr(_image(START_NS, 0), 'sensor_msgs/msg/Image'))
+        writer.write(conn, START_NS, image)
     cases = [
         (('play', tf_bag), "cannot play /tf: unknown message type 'tf2_msgs/msg/TFMessage'"),
+        (('play', mislabelled), '/cam/image_raw: its messages are not sensor_msgs/msg/CameraInfo'),
         (('play', bag, '--topics', '/nope'), 'not in the bag: /nope'),
         (('play', bag, '--remap', 'nonsense'), 'bad remap'),
         (('record', '-o', bag, '/x'), 'exists already'),
