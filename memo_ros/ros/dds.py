@@ -160,6 +160,8 @@ def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threa
 
 
 PROFILES_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+XML_QOS_VARIABLE = 'RMW_FASTRTPS_USE_QOS_FROM_XML'
+NODE_PROFILE = 'fastdds_node_memory.xml'  # config/: DYNAMIC history memory for the nodes
 # One process playing every camera, where each camera would have its own driver: Fast DDS's default
 # 512 KiB
 # shared-memory segment per participant holds one 640x480 image, so the other cameras' images of a
@@ -183,6 +185,29 @@ LARGE_SEGMENT_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
 PLAYER_SEGMENT_FRAMES = (
     4  # frames of every camera (up to 4 bytes a pixel) a player's segment holds
 )
+
+
+def use_node_dds_profile() -> bool:
+    """Have this process's Fast DDS free each message's buffer once taken (see the XML).
+
+    Unless the user configured Fast DDS profiles himself (a profiles file or
+    RMW_FASTRTPS_USE_QOS_FROM_XML) or set MEMO_ROS_NODE_DDS_PROFILE=off.  Call before rclpy.init;
+    returns whether it applied.
+    """
+    import os
+
+    from memo_ros.paths import config_path
+
+    if any(
+        os.environ.get(v) is not None
+        for v in (PROFILES_VARIABLE, 'FASTDDS_DEFAULT_PROFILES_FILE', XML_QOS_VARIABLE)
+    ):
+        return False
+    if os.environ.get('MEMO_ROS_NODE_DDS_PROFILE', 'on') == 'off':
+        return False
+    os.environ[PROFILES_VARIABLE] = str(config_path(NODE_PROFILE))
+    os.environ[XML_QOS_VARIABLE] = '1'  # the XML's memory policy and publication mode only
+    return True
 
 
 def player_segment_bytes(cameras) -> int:

@@ -17,8 +17,34 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from memo_ros.ros.dds import use_node_dds_profile
+
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SPIN_PERIOD_S = 0.1  # how soon a stop signal is noticed: the executor's longest wait
+
+
+M_MMAP_THRESHOLD = -3  # glibc mallopt parameter (malloc.h)
+MMAP_THRESHOLD_BYTES = 8 << 20
+
+
+def release_large_buffers() -> bool:
+    """Have glibc give every buffer of 8 MiB or more back to the system when it is freed.
+
+    glibc raises its mmap threshold to the largest buffer freed (up to 32 MiB): after one 4k
+    image, image-sized buffers came from the heap and stayed resident.  A fixed threshold keeps
+    them mapped on their own; a VGA frame's arrays (at most 3.7 MB) stay on the heap, so no
+    frame pays for a mapping.  Returns whether it applied (glibc only).
+    """
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library('c')
+    if not name:
+        return False
+    try:
+        return bool(ctypes.CDLL(name).mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+    except (OSError, AttributeError):  # not glibc
+        return False
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
@@ -39,6 +65,8 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
     for sig in STOP_SIGNALS:  # a signal never raises, not even in the node's shutdown
         signal.signal(sig, lambda signum, frame: stop.set())
     cv2.setNumThreads(1)  # one process per camera and stage share the cores (see memo_ros.nodes)
+    use_node_dds_profile()  # an oversized message must not stay resident in DDS's buffers
+    release_large_buffers()
     rclpy.init(
         args=args if args is not None else sys.argv,
         signal_handler_options=SignalHandlerOptions.NO,
