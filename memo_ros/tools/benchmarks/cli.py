@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'contour-node = the contour_node process fed at 30 and 60 Hz over DDS; '
         'selector = camera assignment per frame, 14 parts x 3 cameras (--repeat: passes over '
         'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
-        "5,000 contour points per camera (--repeat: passes over the sequence); walker = Rohr's "
+        '5,000 contour points per camera from 3 cameras, and at 1,000 from 4, 6 and 8 '
+        "(--repeat: passes over the sequence); walker = Rohr's "
         'walker per '
         "frame on a street-walk, initialization and tracking, against the paper's exhaustive grid "
         '(--repeat: passes over the sequence); graph = the whole live graph (3 contour nodes, '
