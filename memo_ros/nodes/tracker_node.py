@@ -237,6 +237,15 @@ PARAMS: tuple[Param, ...] = (
         100000,
     ),
     Param(
+        'limb_exchange',
+        0.5,
+        'rad a pair of limbs (legs, arms) changes its left-right difference by before it is tried '
+        'exchanged, left for right; the exchange is kept when it fits the contours better (a fast '
+        'kick seen from the side); 0 never tries',
+        0.0,
+        10.0,
+    ),
+    Param(
         'max_lag',
         1.0,
         'the live latency policy: frames are tracked in order, but one older than the newest '
@@ -283,6 +292,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         hard_limits=p['hard_limits'],
         twin_evidence=p['twin_evidence'],
         twin_recheck=p['twin_recheck'],
+        limb_exchange=p['limb_exchange'],
         process_noise=ProcessNoise(
             p['process_noise_translation'],
             p['process_noise_root_rotation'],
@@ -758,6 +768,7 @@ class TrackerNode(Node):
         self.health.set('heading_confidence', f'{result.heading_confidence:.3f}')
         self.health.set('heading_undecided', str(result.undecided).lower())
         self.health.set('twin_swaps', result.twin_swaps)
+        self.health.set('limb_exchanges', result.limb_exchanges)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:

@@ -36,6 +36,13 @@ JOINT_LIMITS: dict[str, tuple[float, float]] = {
 }
 # the turn by pi about the body's own vertical: rotations about x and y change sign, about z not
 TWIN_SIGN = {'x': -1.0, 'y': -1.0, 'z': 1.0}
+# the mirror in the body's sagittal (x-z) plane: rotations about x and z change sign, about y not
+MIRROR_SIGN = {'x': -1.0, 'y': 1.0, 'z': -1.0}
+# the joints of each pair of limbs, from the torso out (their left and right coordinates exchange)
+LIMB_JOINTS: dict[str, tuple[str, ...]] = {
+    'legs': ('hip', 'knee', 'ankle'),
+    'arms': ('shoulder', 'elbow', 'wrist'),
+}
 # an elbow bent backwards by more than this is the same arm with the upper arm turned about its
 # axis
 ELBOW_REFLEX = 0.2  # rad; below it a slightly negative elbow is only clamped to straight
@@ -77,6 +84,30 @@ class Anatomy:
             other = other_side(joint)
             self.twin_source[k] = names.index(f'{other}_{axis}')
             self.twin_sign[k] = TWIN_SIGN[axis]
+
+        self.limbs = {pair: _limb_exchange(names, joints) for pair, joints in LIMB_JOINTS.items()}
+
+    def difference(self, q: np.ndarray, pair: str) -> np.ndarray:
+        """Left limb's coordinates less the mirror of the right one's (zero for a symmetric pose)."""
+        left, right, sign = self.limbs[pair]
+        q = np.asarray(q, float)
+        return q[left] - sign * q[right]
+
+    def exchange(self, q: np.ndarray, pair: str) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``q`` with the pair's left and right limbs exchanged, and the map of its tangents.
+
+        Each limb takes the other's angles mirrored in the sagittal plane, so
+        the raised leg of a kick becomes the other leg raised the same way;
+        the torso and the other pair stay.  The pose a side view cannot tell
+        from ``q``, which a fast limb motion can leave the filter in.
+        """
+        left, right, sign = self.limbs[pair]
+        out = np.array(q, float)
+        out[left], out[right] = sign * out[right], sign * out[left]
+        M = np.eye(self.n)
+        M[left, left] = M[right, right] = 0.0
+        M[left, right] = M[right, left] = sign
+        return out, M
 
     def reflexed_arms(self, q: np.ndarray) -> list[tuple[int, int, int]]:
         """Return (shoulder, elbow_y, elbow_z) indices of every arm whose elbow bends backwards."""
@@ -150,6 +181,14 @@ class Anatomy:
         M[np.arange(self.n), self.twin_source] = self.twin_sign
         M[3:6, 3:6] = np.diag([-1.0, -1.0, 1.0])
         return M
+
+
+def _limb_exchange(names: Sequence[str], joints: Sequence[str]) -> tuple:
+    """Indices of a pair's left and right coordinates, and the mirror's sign of each."""
+    left = [k for k, n in enumerate(names) if n.rsplit('_', 2)[0] in joints and '_l_' in n]
+    right = [names.index(n.replace('_l_', '_r_')) for n in (names[k] for k in left)]
+    sign = np.array([MIRROR_SIGN[names[k].rsplit('_', 1)[1]] for k in left])
+    return np.array(left, int), np.array(right, int), sign
 
 
 def facing(body: Body, q: np.ndarray) -> np.ndarray:

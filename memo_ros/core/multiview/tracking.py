@@ -96,6 +96,8 @@ class TrackerSettings:
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
+    limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
+    exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
@@ -122,6 +124,7 @@ class FrameResult:
         False  # the twin is followed beside the pose: the evidence has not separated them
     )
     twin_swaps: int = 0  # times the twin won and took the pose's place, since the start
+    limb_exchanges: int = 0  # times a pair of limbs fitted better exchanged, since the start
 
 
 class ArticulatedTracker:
@@ -147,6 +150,7 @@ class ArticulatedTracker:
         self.limit_low = self.anatomy.limit_low
         self.limit_high = self.anatomy.limit_high
         self.twin_swaps = 0
+        self.limb_exchanges = 0
         self.reset()
 
     # ------------------------------------------------------------ state
@@ -168,6 +172,13 @@ class ArticulatedTracker:
         self.twin_check = False  # the twin is followed only to check a decided leader
         self.twin_age = 0
         self.since_twin = 0  # frames since the twin was last followed
+        # each pair of limbs' left-right difference when it was last tried exchanged
+        self.exchange_tried = {
+            pair: self.anatomy.difference(self.pending_pose, pair)
+            if self.pending_pose is not None
+            else np.zeros(len(limb[0]))
+            for pair, limb in self.anatomy.limbs.items()
+        }
 
     def apply_settings(self, settings: TrackerSettings) -> None:
         """Apply new noises, gates and limits from the next frame on; the current estimate is kept."""
@@ -238,6 +249,8 @@ class ArticulatedTracker:
         free = self.ekf.q.copy()  # before the ranges: its twin bends the right way
         if self.settings.hard_limits:
             self._clamp(self.ekf)
+        if self.settings.limb_exchange > 0 and not initialised:
+            self._exchange_limbs(contours, rays, masks, samples)
         if self.settings.twin_evidence > 0:
             self._follow_twin(
                 contours, rays, masks, samples, dt, initialised and not from_pose, free
@@ -280,6 +293,7 @@ class ArticulatedTracker:
             self.heading_confidence,
             self.undecided,
             self.twin_swaps,
+            self.limb_exchanges,
         )
 
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
@@ -402,6 +416,39 @@ class ArticulatedTracker:
         if confirmed or self.evidence > s.twin_evidence or self.twin_age >= s.twin_max_frames:
             self.twin_ekf = None
             self.since_twin = 0
+
+    def _exchange_limbs(self, contours, rays, masks, samples: int) -> None:
+        """Exchange a pair of limbs when the exchanged pair fits this frame's contours better.
+
+        A fast kick seen from the side moves the model's leg nearer that camera whichever leg
+        kicks, and the other views tell the two apart only once the legs are exchanged.  A pair is
+        tried whenever its left-right difference has changed by ``limb_exchange`` since its last
+        try (fast limb motion): exchanged, refined by one iteration and kept if it fits better by
+        ``exchange_margin`` per sample.
+        """
+        s = self.settings
+        counts = self._last_counts
+        current = None
+        for pair in self.anatomy.limbs:
+            difference = self.anatomy.difference(self.ekf.q, pair)
+            if np.max(np.abs(difference - self.exchange_tried[pair])) < s.limb_exchange:
+                continue
+            self.exchange_tried[pair] = difference
+            if current is None:
+                current = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+            q, M = self.anatomy.exchange(self.ekf.q, pair)
+            trial = ArticulatedEKF(self.model)
+            trial.q, trial.v, trial.P = q, M @ self.ekf.v, _mapped_covariance(self.ekf.P, M)
+            trial.update(self._measurement_function(contours, rays, masks), 1, s.gate_sigma)
+            if s.hard_limits:
+                self._clamp(trial)
+            cost = self._fit_cost(trial.q, contours, rays, masks, samples)
+            if cost < current - s.exchange_margin * samples:
+                self.ekf = trial
+                self.limb_exchanges += 1
+                self.exchange_tried[pair] = self.anatomy.difference(trial.q, pair)
+                current = cost
+        self._last_counts = counts
 
     def _twin_filter(self, ekf: ArticulatedEKF, free: np.ndarray) -> ArticulatedEKF:
         """Return a filter at the twin of ``ekf``'s state, its covariance carried by the same map.
