@@ -37,14 +37,17 @@ setup(
     include_package_data=False,
     install_requires=install_requires,
     extras_require={
-        'test': ['pytest>=8', 'ruff>=0.17', 'mypy>=2.4', 'hypothesis>=6.100'],
+        'test': ['pytest>=8', 'ruff>=0.17', 'mypy>=2.4', 'types-PyYAML>=6.0', 'hypothesis>=6.100'],
         # evaluate --keypoints: BlazePose's weights ship inside this wheel; no node imports it
         'keypoints': ['mediapipe==0.10.14'],
     },
     zip_safe=True,
     maintainer='memo_ros developers',
     maintainer_email='memo_ros@example.org',
-    description='Model-based 3D human posture tracking from calibrated cameras (MEMO, active multi-viewpoint EKF).',
+    description=(
+        'Model-based 3D human posture tracking from calibrated cameras '
+        '(MEMO, active multi-viewpoint EKF).'
+    ),
     license='Apache-2.0',
     python_requires='>=3.10',
     entry_points={

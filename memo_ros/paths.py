@@ -9,7 +9,7 @@ PACKAGE = 'memo_ros'
 
 
 def share_dir() -> Path:
-    """Return the package's share directory: ament index, then the venv prefix, then the checkout."""
+    """Return the package's share directory: ament index, else the venv prefix, else checkout."""
     try:
         from ament_index_python.packages import get_package_share_directory
 

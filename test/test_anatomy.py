@@ -22,7 +22,7 @@ SWAPPED = [PART_NAMES.index(other_side(p)) for p in PART_NAMES]
 
 
 def _bent_pose(heading_deg: float) -> np.ndarray:
-    """Return a standing pose with bent knees and elbows, the arms half raised, facing ``heading``."""
+    """Return a standing pose: knees and elbows bent, arms half raised, facing ``heading``."""
     q = BODY.neutral()
     values = {
         'knee_l_y': -0.9,

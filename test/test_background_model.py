@@ -23,7 +23,7 @@ H, W = 120, 160
 
 
 def scene(seed: int = 0) -> np.ndarray:
-    """Return a textured colour background (smooth gradients plus fixed texture), uint8 (H, W, 3)."""
+    """Return a textured colour background (gradients plus a fixed texture), uint8 (H, W, 3)."""
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:H, 0:W]
     base = np.stack([60 + 0.8 * x, 90 + 0.6 * y, 150 - 0.4 * x + 0.3 * y], axis=-1)
@@ -210,7 +210,7 @@ def test_tracked_keep_prefers_the_region_on_the_prior_over_the_largest():
         select_regions(mask, 50, 'nearest')
 
 
-def test_pipeline_sequence_mode_takes_colour_learns_then_segments_and_keeps_the_default_grey_only():
+def test_pipeline_sequence_mode_takes_colour_learns_then_segments_and_the_default_stays_grey():
     _, images, masks = sequence(frames=40)
     pipeline = ContourPipeline(
         segmenter='sequence', threshold=12.0, background_frames=40, keep='tracked'

@@ -1,4 +1,4 @@
-"""Body dimensions from silhouettes: a known body rendered into a four-camera rig is measured back."""
+"""Body dimensions from silhouettes: a known body rendered into four cameras is measured back."""
 
 import numpy as np
 import pytest

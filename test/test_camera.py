@@ -45,7 +45,10 @@ def make_camera(model='plumb_bob', skew=0.0, D=None) -> Camera:
 
 
 def points_in_view(cam: Camera, n: int, seed: int = 0, margin: float = 0.8) -> np.ndarray:
-    """Random world points in front of the camera whose ideal projections lie within ``margin`` of the image."""
+    """Random world points in front of the camera.
+
+    Their ideal projections lie within ``margin`` of the image.
+    """
     rng = np.random.default_rng(seed)
     depth = rng.uniform(1.0, 6.0, n)
     x = rng.uniform(-margin, margin, n) * (cam.width / 2) / cam.K[0, 0]

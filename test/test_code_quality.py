@@ -1,4 +1,4 @@
-"""The code base's own checks: formatting (ruff format, ament's 99 columns), imports and layers."""
+"""The code base's own checks: ruff (format and lint, ament's rules), mypy, imports and layers."""
 
 from __future__ import annotations
 
@@ -68,6 +68,17 @@ def _package_graph() -> dict[str, set[str]]:
 
 def test_ruff_format_leaves_every_file_as_it_is():
     done = _tool('ruff', 'format', '--check', '--no-cache', '.')
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
+
+
+def test_ruff_check_finds_nothing():
+    done = _tool('ruff', 'check', '--no-cache', '--output-format', 'concise', '.')
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
+
+
+def test_mypy_finds_nothing_in_the_core(tmp_path):
+    # mypy.ini names the files (memo_ros/core); a fresh cache keeps a clean clone's run honest
+    done = _tool('mypy', '--config-file', 'mypy.ini', '--cache-dir', str(tmp_path / 'mypy'))
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
 
 

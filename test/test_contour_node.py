@@ -79,7 +79,7 @@ def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
     images = [
         stamp_to_ns(m.message.header.stamp) for m in read_messages(bag, ['/cam_street/image_raw'])
     ]
-    contours = [m for m in read_messages(out, ['/cam_street/contours'])]
+    contours = list(read_messages(out, ['/cam_street/contours']))
     # every frame, header copied; only the very first may precede its camera_info on another topic
     stamps = [stamp_to_ns(m.message.header.stamp) for m in contours]
     assert stamps in (images, images[1:])

@@ -1,4 +1,4 @@
-"""Occluding contours (Kakadiaris §4.1 step 1), Rohr's edge lines (§4.3) and the contour pipeline."""
+"""Occluding contours (Kakadiaris §4.1 step 1), Rohr's edge lines (§4.3), the contour pipeline."""
 
 from __future__ import annotations
 

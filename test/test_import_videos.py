@@ -80,7 +80,10 @@ def max_reprojection(expected: list[Camera], got: list[Camera]) -> float:
 
 @pytest.fixture(scope='module')
 def simulated(tmp_path_factory):
-    """Return a small studio-arm bag whose studio cameras carry lens distortion and an off-centre principal point."""
+    """Return a small studio-arm bag.
+
+    Its studio's cameras carry lens distortion and an off-centre principal point.
+    """
     base = tmp_path_factory.mktemp('sim')
     result = simulate(
         'studio-arm', base / 'bag', frames=FRAMES, width=WIDTH, height=HEIGHT, empty_frames=1

@@ -1,4 +1,4 @@
-"""Inputs checked against what they must be, not only for finiteness: intrinsics and contour clouds."""
+"""Inputs checked against what they must be, beyond finiteness: intrinsics and contour clouds."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""LostFrameCounter: images that never arrived are found from their camera_info, each exactly once."""
+"""LostFrameCounter: images that never arrived are found from their camera_info, each just once."""
 
 import time
 
@@ -17,7 +17,7 @@ def test_announced_frames_without_an_image_are_lost_once_a_newer_image_arrives()
     assert c.announced(2) == []  # a repeated announcement is not a second loss
 
 
-def test_an_announcement_older_than_the_newest_image_is_lost_at_once_and_unstamped_ones_name_no_frame():
+def test_an_announcement_older_than_the_newest_image_is_lost_at_once_unstamped_ones_name_none():
     c = LostFrameCounter()
     c.received(10)
     assert c.announced(9) == [9]

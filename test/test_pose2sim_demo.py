@@ -78,7 +78,7 @@ def demo(tmp_path_factory):
 
 @pytest.fixture(scope='module')
 def backgrounds(demo):
-    """Every camera's background, learnt from the recording as contour_node's background_bag does."""
+    """Each camera's background learnt from the recording, as by contour_node's background_bag."""
     studio, frames = demo
     return {
         name: background_from_frames(frames[name], BACKGROUND_FRAMES)

@@ -1,4 +1,4 @@
-"""Change detection (Rohr eq. 1), binary cleanup, regions and the segmenters on simulated frames."""
+"""Change detection (Rohr eq. 1), binary cleanup, regions, the segmenters on simulated frames."""
 
 from __future__ import annotations
 
@@ -258,9 +258,10 @@ def _arm_beside_trunk(
     truth[20:70, 80 + slit : 92 + slit] = True  # arm hanging beside it
     truth[20:26, 80 : 80 + slit] = True  # shoulder joins them at the top
     frame = np.where(truth, 185.0, background)
-    noisy = lambda img: (
-        (img + rng.normal(0, noise, img.shape)).clip(0, 255).round().astype(np.uint8)
-    )  # noqa: E731
+
+    def noisy(img: np.ndarray) -> np.ndarray:
+        return (img + rng.normal(0, noise, img.shape)).clip(0, 255).round().astype(np.uint8)
+
     return noisy(background), noisy(frame), truth
 
 

@@ -123,7 +123,7 @@ def test_motion_along_a_cameras_optical_axis_ranks_that_camera_last(camera, norm
     assert seen_by_three.any() and not two.selected[seen_by_three, k].any()
 
 
-def test_spin_about_the_parts_own_axis_cancels_in_the_papers_norm_of_the_sum_not_in_the_sum_of_norms():
+def test_spin_about_the_parts_own_axis_cancels_in_the_papers_norm_of_sum_not_in_the_sum_of_norms():
     q_prev = BODY.neutral()
     q_prev[BODY.coordinate_index('shoulder_r_y')] = (
         np.pi / 2
@@ -269,12 +269,12 @@ def test_all_cameras_mode_assigns_every_live_camera_to_every_part():
 @pytest.mark.parametrize(
     'bad',
     [
-        dict(vi_threshold=1.5),
-        dict(max_cameras_per_part=-1),
-        dict(max_cameras_per_part=65),
-        dict(render_scale=0.0),
-        dict(observability_norm='max'),
-        dict(camera_timeout_s=0.0),
+        {'vi_threshold': 1.5},
+        {'max_cameras_per_part': -1},
+        {'max_cameras_per_part': 65},
+        {'render_scale': 0.0},
+        {'observability_norm': 'max'},
+        {'camera_timeout_s': 0.0},
     ],
 )
 def test_bad_settings_are_refused_with_the_reason(bad):

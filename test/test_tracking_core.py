@@ -212,7 +212,10 @@ def _reference_assignment(rays, cand, epsilon, gate):
 def test_assignment_takes_the_first_compatible_of_the_eight_nearest_candidates():
     rng = np.random.default_rng(8)
     n_s, n_c = 400, 300
-    unit = lambda a: a / np.linalg.norm(a, axis=1, keepdims=True)
+
+    def unit(a: np.ndarray) -> np.ndarray:
+        return a / np.linalg.norm(a, axis=1, keepdims=True)
+
     rays = ContourRays(
         rng.uniform(0, 200, (n_s, 2)),
         unit(rng.normal(0, 1, (n_s, 2))),

@@ -69,7 +69,7 @@ def _diagnostics(bag, name: str) -> dict[str, str]:
 
 @pytest.fixture(scope='module')
 def street_run(tmp_path_factory):
-    """One street-walk bag at 640x480 and the default noise, through the launched graph, recorded."""
+    """One street-walk bag, 640x480 and the default noise, through the launched graph, recorded."""
     import os
 
     from conftest import RosEnv, next_domain_id
@@ -222,7 +222,10 @@ def test_kalman_estimates_are_smoother_than_the_measurements(street_run):
     assert len(stamps) >= 40
     raw = np.array([[measured[s]['X'], measured[s]['pose']] for s in stamps])
     kalman = np.array([[estimated[s]['root_tx'], estimated[s]['gait_phase']] for s in stamps])
-    step = lambda v: np.stack([np.diff(v[:, 0]), np.mod(np.diff(v[:, 1]) + 0.5, 1.0) - 0.5], 1)
+
+    def step(v: np.ndarray) -> np.ndarray:
+        return np.stack([np.diff(v[:, 0]), np.mod(np.diff(v[:, 1]) + 0.5, 1.0) - 0.5], 1)
+
     var_raw, var_kalman = step(raw).var(axis=0), step(kalman).var(axis=0)
     print(
         f'frame-to-frame variance X: measurements {var_raw[0]:.3g} m^2, Kalman '
@@ -318,7 +321,10 @@ def test_bad_input_is_counted_with_its_reason_and_the_node_keeps_running(ros_env
         )  # edges without their fields
         frame(2003, rectangle)  # image 1: initialization starts
         frame(2001)  # stamp jumps back: reset, nobody seen
-        grown = lambda key: int(values.get(key, 0)) - before.get(key, 0)
+
+        def grown(key: str) -> int:
+            return int(values.get(key, 0)) - before.get(key, 0)
+
         read_until(lambda: grown('frames_in') == 5 and 'time_jump_resets' in values)
         assert grown('dropped.bad_input') == 2 and grown('dropped.no_person') == 2, values
         assert values['time_jump_resets'] == '1' and int(values['initializing']) == 1, values

@@ -126,9 +126,9 @@ def test_eq_7_for_one_cut_edge():
     a, b = np.array([[[0.0, 0.0]]]), np.array([[[50.0, 0.0]]])  # model contour, l_M = 50
     edges = np.array([[30.0, 2.0, 80.0, 2.0, 1.0]])  # parallel, 2 px away, overlaps 20 px
     s = similarity(a, b, edges, np.array([0]), np.array([0]), params)[0]
-    l, l_m, d, r = 20.0, 50.0, 2.0, 10.0
+    l_e, l_m, d, r = 20.0, 50.0, 2.0, 10.0  # l_e: the length the edge overlaps the contour
     expected = (
-        l * np.exp(-0.5 * (((l_m - l) / (0.4 * l_m)) ** 2 + (d / (0.5 * r)) ** 2)) / l_m
+        l_e * np.exp(-0.5 * (((l_m - l_e) / (0.4 * l_m)) ** 2 + (d / (0.5 * r)) ** 2)) / l_m
     )  # eq. 7, 11
     assert s == pytest.approx(expected, rel=1e-5)
 

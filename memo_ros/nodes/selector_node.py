@@ -318,7 +318,10 @@ class SelectorNode(Node):
         self.posteriors.append((stamp, q, qdot))
 
     def _check_camera_info(self, cam: str, msg: CameraInfo) -> tuple[str, str] | None:
-        """(reason, message) when a camera_info is unusable or contradicts the studio's calibration."""
+        """Return (reason, message) when a camera_info is unusable or contradicts the studio.
+
+        That is, the studio's calibration of that camera; None when it is fine.
+        """
         k = np.asarray(msg.k, float)
         problem = intrinsics_problem(msg.width, msg.height, msg.distortion_model, msg.d, k)
         if problem:

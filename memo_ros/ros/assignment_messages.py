@@ -1,4 +1,4 @@
-"""The camera assignment on ``/memo/camera_assignment`` as a standard diagnostic_msgs/DiagnosticArray.
+"""The camera assignment on ``/memo/camera_assignment`` as a diagnostic_msgs/DiagnosticArray.
 
 One DiagnosticStatus per part, in part order: ``name`` = the part, ``level``
 OK when some camera sees it and WARN when it is unobserved, ``message`` = the
@@ -71,7 +71,7 @@ def is_assignment_message(msg) -> bool:
 
 
 def assignment_from_message(msg: DiagnosticArray) -> Assignment:
-    """Return the Assignment a message carries; ValueError when the message is not in this layout."""
+    """Return the Assignment a message carries; ValueError when it is not in this layout."""
     if not is_assignment_message(msg):
         raise ValueError(
             'not a camera assignment: expected one DiagnosticStatus per part in part order '

@@ -99,7 +99,7 @@ def pose_array_msg(stamp_ns: int, positions: np.ndarray, quaternions_xyzw: np.nd
 
 
 class BagWriter:
-    """A rosbag2 writer (mcap or sqlite3, metadata version 9) for typestore messages and for raw bytes.
+    """A rosbag2 writer (mcap or sqlite3, metadata version 9) for typestore messages and raw bytes.
 
     :meth:`write` registers a topic on first use and serializes a typestore message;
     :meth:`add_connection` and :meth:`write_raw` store bytes received on the wire as they are.
@@ -224,8 +224,10 @@ def bag_topics(path: str | Path) -> dict[str, str]:
 
 
 def tracked_bodies(path: str | Path) -> dict[int, tuple]:
-    """Stamp (ns) -> (rotations, origins, semi_axes, lengths) of every body a tracker's output bag draws on
-    /memo/markers (a first pass over a recording, for learning its background with the person masked out).
+    """Stamp (ns) -> (rotations, origins, semi_axes, lengths) of every body a tracker's bag draws.
+
+    The bodies are those on /memo/markers of the tracker's output bag (a first pass over a
+    recording, for learning its background with the person masked out).
     """
     from memo_ros.ros.body_messages import MARKERS_TOPIC, tracked_body_from_markers
 

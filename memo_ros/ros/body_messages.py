@@ -46,12 +46,18 @@ def world_header(stamp_ns: int) -> Header:
 
 
 def processed_outcome(frame_id: str) -> str:
-    """Return the outcome word of a /memo/processed frame_id ('tracking heading_confidence=0.62')."""
+    """Return the outcome word of a /memo/processed frame_id.
+
+    For example 'tracking' of 'tracking heading_confidence=0.62'.
+    """
     return frame_id.split(' ', 1)[0]
 
 
 def processed_message(stamp_ns: int, outcome: str) -> Header:
-    """Return the frame ``stamp_ns`` is done (``outcome`` in frame_id: tracking, lost, waiting, dropped...): replay's back-pressure."""
+    """Return the header saying frame ``stamp_ns`` is done: replay's back-pressure.
+
+    ``outcome`` goes in frame_id: tracking, lost, waiting, dropped...
+    """
     return Header(stamp=stamp_from_ns(stamp_ns), frame_id=outcome)
 
 
@@ -136,8 +142,10 @@ def root_pose_message(
 
 
 def tracked_body_from_markers(msg: MarkerArray) -> tuple[int, tuple[np.ndarray, ...]] | None:
-    """(stamp ns, (rotations, origins, semi_axes, lengths)) of the body a /memo/markers message draws; None
-    when it has no cylinders (the inverse of :func:`marker_array_message` for the parts).
+    """Return (stamp ns, (rotations, origins, semi_axes, lengths)) of a /memo/markers body.
+
+    The body the message draws; None when it has no cylinders (the inverse of
+    :func:`marker_array_message` for the parts).
     """
     cylinders = sorted((m for m in msg.markers if m.type == m.CYLINDER), key=lambda m: m.id)
     if not cylinders:

@@ -54,7 +54,7 @@ class NodeHealth:
             self.counters[key] += n
 
     def drop(self, reason: str, message: str) -> None:
-        """Count a frame not processed under ``reason`` and log ``message`` (throttled per reason)."""
+        """Count a frame not processed under ``reason``; log ``message``, throttled per reason."""
         with self._lock:
             self.dropped[reason] += 1
             self._problem = f'{reason}: {message}'
@@ -72,7 +72,7 @@ class NodeHealth:
         self._node.get_logger().info(message, throttle_duration_sec=LOG_THROTTLE_S)
 
     def warn(self, reason: str, message: str) -> None:
-        """Count an event that needs attention (a reset of learnt state) and log it as a warning."""
+        """Count an event that needs attention (a reset of learnt state); log it as a warning."""
         with self._lock:
             self.counters[reason] += 1
             self._problem = f'{reason}: {message}'

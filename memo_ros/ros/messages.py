@@ -292,7 +292,7 @@ def _flatten(prefix: str, value, field_type: str, out: dict, max_array_length: i
 
 
 def flatten_message(msg, max_array_length: int | None = None) -> dict:
-    """Leaf fields of a message as one flat dict ('header.stamp.sec', 'position[0]', ...) for CSV rows.
+    """Leaf fields of a message as one flat dict for CSV rows: 'header.stamp.sec', 'position[0]'.
 
     Numeric arrays longer than ``max_array_length`` become one '<type[n]>' cell.
     """

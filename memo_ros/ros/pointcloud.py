@@ -32,7 +32,10 @@ NUMPY_TO_FIELD = {
 
 
 def dtype_from_fields(fields, point_step: int, big_endian: bool = False) -> np.dtype:
-    """Return the structured dtype of one point described by ``fields`` (PointField list) and ``point_step``."""
+    """Return the structured dtype of one point.
+
+    The point is described by ``fields`` (a PointField list) and ``point_step``.
+    """
     order = '>' if big_endian else '<'
     names, formats, offsets = [], [], []
     for field in fields:
@@ -83,7 +86,7 @@ def pointcloud_to_array(msg) -> np.ndarray:
 
 
 def fields_from_dtype(dtype: np.dtype) -> list[PointField]:
-    """PointFields describing a structured dtype (numeric fields, scalar or fixed 1-D sub-arrays)."""
+    """PointFields describing a structured dtype of numeric fields, scalars or fixed 1-D arrays."""
     if dtype.names is None:
         raise ValueError('a point cloud needs a structured dtype (named fields)')
     fields = []
@@ -137,7 +140,7 @@ def _is_dense(array: np.ndarray) -> bool:
 
 
 def array_to_pointcloud(array: np.ndarray, header: Header | None = None) -> PointCloud2:
-    """Return an unorganized (height 1) little-endian PointCloud2 holding the rows of a structured array."""
+    """Return an unorganized (height 1) little-endian PointCloud2 of a structured array's rows."""
     array = np.asarray(array).reshape(-1)
     fields = fields_from_dtype(array.dtype)
     packed = np.ascontiguousarray(array.astype(_little_endian(array.dtype), copy=False))

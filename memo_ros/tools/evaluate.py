@@ -230,7 +230,10 @@ def run_keypoints(args: argparse.Namespace) -> int:
 
 
 def _silhouettes(args: argparse.Namespace, studio, estimate):
-    """Return the silhouette report of ``estimate`` against the person segmented in ``args.images``."""
+    """Return the silhouette report of ``estimate``.
+
+    Against the person segmented in ``args.images``.
+    """
     from memo_ros.tools.cli import CliError
     from memo_ros.tools.silhouette_eval import (
         evaluate_silhouettes,
@@ -275,7 +278,10 @@ def load_track(path: Path, topics: tuple[str, str]) -> PoseTrack:
 
 
 def match_and_measure(truth: PoseTrack, estimate: PoseTrack, tolerance_ns: int) -> FrameErrors:
-    """Pair every truth frame with the estimate of the nearest stamp within the tolerance and measure."""
+    """Measure the estimate against the truth, frame by frame.
+
+    Every truth frame is paired with the estimate of the nearest stamp within the tolerance.
+    """
     est_stamps = np.array(sorted(estimate.origins), dtype=np.int64)
     pairs = []
     for stamp in sorted(truth.origins):

@@ -1,4 +1,4 @@
-"""Export a bag's camera images as one video per camera plus the calibration in another tool's format.
+"""Export a bag's images as one video per camera plus the calibration in another tool's format.
 
 ``memo-ros export videos BAG --out DIR --calibration-format toml`` writes
 ``DIR/<cam>.mkv`` (FFV1, lossless; or PNG-in-AVI, lossless; or MJPG, lossy but
@@ -188,7 +188,7 @@ def export_videos(
     force: bool = False,
     progress: bool = False,
 ) -> ExportResult:
-    """Write one video per camera of ``bag`` and the calibration as ``fmt`` into the folder ``out``."""
+    """Write one video per camera of ``bag`` and the calibration as ``fmt`` into folder ``out``."""
     import cv2
 
     quiet_ffmpeg()

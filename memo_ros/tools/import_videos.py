@@ -380,7 +380,7 @@ def _frames(source: VideoSource, first: int, last: int | None) -> Iterator[tuple
 
 
 def convert_frame(bgr: np.ndarray, size: tuple[int, int], encoding: str) -> np.ndarray:
-    """Return a decoded BGR frame resized to ``size`` (width, height) and converted to ``encoding``."""
+    """Return a decoded BGR frame resized to ``size`` (width, height) and in ``encoding``."""
     import cv2
 
     if (bgr.shape[1], bgr.shape[0]) != size:
@@ -425,7 +425,10 @@ def import_videos(
     force: bool = False,
     progress: bool = False,
 ) -> ImportResult:
-    """Write the bag ``out`` and the studio ``out.yaml`` from ``videos`` calibrated by ``calibration``."""
+    """Write the bag ``out`` and the studio ``out.yaml``.
+
+    From ``videos``, calibrated by ``calibration``.
+    """
     if encoding not in ENCODINGS:
         raise VideoImportError(f'unknown encoding {encoding!r}; known: {", ".join(ENCODINGS)}')
     if not scale > 0:

@@ -70,7 +70,7 @@ def write_plots(
 
 # ------------------------------------------------------------------ curves
 def _frame_numbers(stamps: np.ndarray, truth_stamps: np.ndarray) -> np.ndarray:
-    """Frame number (index into the sorted truth stamps) of the nearest truth frame of each stamp."""
+    """Frame number (index in the sorted truth stamps) of the nearest truth frame of each stamp."""
     n = len(truth_stamps)
     if n == 0:
         return np.zeros(len(stamps), int)
@@ -206,7 +206,7 @@ def _nearest(stamps: np.ndarray, stamp: int) -> int:
 def _read_images(
     bag: Path, cameras: list[str], stamps: set[int]
 ) -> dict[tuple[str, int], np.ndarray]:
-    """Grey images (uint8) of ``cameras`` at header ``stamps``, stopping as soon as all are found."""
+    """Grey images (uint8) of ``cameras`` at header ``stamps``; stops once all are found."""
     from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
     from memo_ros.ros.images import image_message_to_grey
 
@@ -232,7 +232,7 @@ def _read_images(
 
 
 def outline_image(grey: np.ndarray, label: np.ndarray) -> np.ndarray:
-    """BGR copy of ``grey`` with each part's outline in its colour and the body silhouette in yellow."""
+    """BGR copy of ``grey``, each part's outline in its colour, the body silhouette in yellow."""
     import cv2
 
     image = cv2.cvtColor(np.ascontiguousarray(grey), cv2.COLOR_GRAY2BGR)
@@ -256,7 +256,10 @@ def _overlays(
     truth_bag: Path,
     truth_stamps: np.ndarray,
 ) -> list[Path]:
-    """Estimated model outlines over the camera images of ~4 frames, one file per camera and frame."""
+    """Estimated model outlines over the camera images of ~4 frames.
+
+    One file per camera and frame.
+    """
     import cv2
 
     from memo_ros.core.geometry.render import render

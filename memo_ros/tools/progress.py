@@ -15,7 +15,10 @@ class Progress:
         self._last = 0.0
 
     def update(self, done: int) -> None:
-        """Show ``done`` items on the status line (only on a terminal, at most a few times a second)."""
+        """Show ``done`` items on the status line.
+
+        Only on a terminal, and at most a few times a second.
+        """
         if not self.enabled:
             return
         now = time.monotonic()

@@ -120,7 +120,10 @@ def evaluate_silhouettes(
     shape: ModelShape,
     keep_frames: int = 4,
 ) -> SilhouetteReport:
-    """Segment every camera's images as the contour nodes did and compare with the rendered estimate."""
+    """Segment every camera's images as the contour nodes did and compare with the estimate.
+
+    The estimate is rendered into each camera.
+    """
     from memo_ros.nodes.contour_node import (
         PARAMS,
         pipeline_settings,

@@ -159,7 +159,7 @@ def _contours_figure(
     picks = stamps[
         np.unique(np.linspace(0, len(stamps) - 1, CONTOUR_FRAMES + 2).round().astype(int))[1:-1]
     ]
-    images = _read_images(truth_bag, [camera.name], set(int(s) for s in picks))
+    images = _read_images(truth_bag, [camera.name], {int(s) for s in picks})
     tiles = []
     for stamp in picks:
         grey = images.get((camera.name, int(stamp)))

@@ -72,7 +72,10 @@ def summarize(errors: FrameErrors, body_height: float, frames_truth: int) -> dic
 
 
 def per_part_table(errors: FrameErrors, part_names, body_height: float) -> list[dict]:
-    """Per part: mean/max joint error (mm), max translation (% height), mean/max axis error (deg)."""
+    """One row per part: its joint, translation and axis errors.
+
+    Mean/max joint error (mm), max translation (% height), mean/max axis error (deg).
+    """
     rows = []
     for i, name in enumerate(part_names):
         if errors.joint_mm.size == 0:

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import json
 from pathlib import Path
 import re
+from typing import Literal, overload
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -202,37 +203,58 @@ def read_qualisys(path: str | Path, video_only: bool = True) -> list[Camera]:
     return [_qualisys_camera(tag, i, path) for i, tag in enumerate(tags)]
 
 
+def _qualisys_number(
+    element: ET.Element | None, name: str, key: str, default: str | None = None
+) -> float:
+    """Attribute ``key`` of a camera's element ``name`` as a number.
+
+    TypeError when the element or the attribute is missing, ValueError when it is no number.
+    """
+    if element is None:
+        raise TypeError(f'no {name}')
+    value = element.get(key, default)
+    if value is None:
+        raise TypeError(f'no {key} in {name}')
+    return float(value)
+
+
 def _qualisys_camera(tag: ET.Element, index: int, path: Path) -> Camera:
     serial = tag.get('serial', '')
     try:
         fov, intr, tr = tag.find('fov_video'), tag.find('intrinsic'), tag.find('transform')
-        left, top = float(fov.get('left')), float(fov.get('top'))
-        width = float(fov.get('right')) - left + 1
-        height = float(fov.get('bottom')) - top + 1
+
+        def edge(key: str) -> float:
+            return _qualisys_number(fov, 'fov_video', key)
+
+        left, top = edge('left'), edge('top')
+        width = edge('right') - left + 1
+        height = edge('bottom') - top + 1
 
         def sub(key: str, default: str | None = None) -> float:
-            return float(intr.get(key, default)) / QUALISYS_SUBPIXELS
+            return _qualisys_number(intr, 'intrinsic', key, default) / QUALISYS_SUBPIXELS
 
         K = [
             [sub('focalLengthU'), sub('skew', '0'), sub('centerPointU') - left],
             [0.0, sub('focalLengthV'), sub('centerPointV') - top],
             [0.0, 0.0, 1.0],
         ]
-        D = [
+        coefficients = [
             sub('radialDistortion1'),
             sub('radialDistortion2'),
             sub('tangentalDistortion1'),
             sub('tangentalDistortion2'),
             sub('radialDistortion3', '0'),
         ]
-        M = np.array([[float(tr.get(f'r{i}{j}')) for j in (1, 2, 3)] for i in (1, 2, 3)])
-        centre = np.array([float(tr.get(k)) for k in 'xyz']) * UNITS['mm']
+        M = np.array(
+            [[_qualisys_number(tr, 'transform', f'r{i}{j}') for j in (1, 2, 3)] for i in (1, 2, 3)]
+        )
+        centre = np.array([_qualisys_number(tr, 'transform', k) for k in 'xyz']) * UNITS['mm']
     except (AttributeError, TypeError, ValueError) as exc:
         raise CalibrationError(
             f'{path}: camera {serial!r}: missing or malformed fov_video, intrinsic or '
             f'transform ({exc})'
         ) from None
-    model, D = distortion_from_coefficients(D, f'{path}: camera {serial!r}')
+    model, D = distortion_from_coefficients(coefficients, f'{path}: camera {serial!r}')
     R_world_cam = M.T @ FLIP_X  # M^T: the Qualisys camera's axes in world; Rx(pi): its -z is our z
     return _camera(
         f'{path}: camera {serial!r}',
@@ -433,6 +455,18 @@ def _storage_names(storage, path: Path) -> list[str]:
     return [item.string() if item.isString() else str(int(item.real())) for item in items]
 
 
+@overload
+def _storage_matrix(
+    storage, key: str, path: Path, required: Literal[True] = True
+) -> np.ndarray: ...
+
+
+@overload
+def _storage_matrix(
+    storage, key: str, path: Path, required: Literal[False]
+) -> np.ndarray | None: ...
+
+
 def _storage_matrix(storage, key: str, path: Path, required: bool = True) -> np.ndarray | None:
     node = storage.getNode(key)
     if node.empty():
@@ -624,7 +658,10 @@ def read_ros(path: str | Path, poses: str | Path | None = None) -> list[Camera]:
 
 
 def write_ros(cameras: list[Camera], folder: str | Path) -> list[Path]:
-    """``<cam>.yaml`` (ROS camera_calibration layout) per camera and ``poses.yaml`` in ``folder``."""
+    """Write the cameras into ``folder`` in ROS camera_calibration layout.
+
+    One ``<cam>.yaml`` per camera, and ``poses.yaml``.
+    """
     _check_names(cameras, str(folder))
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -754,7 +791,7 @@ def load_calibration(
 
 
 def read_calibration(path: str | Path, **options) -> list[Camera]:
-    """Cameras of a calibration file or folder in any known format (see :func:`load_calibration`)."""
+    """Cameras of a calibration file or folder in any known format (:func:`load_calibration`)."""
     return load_calibration(path, **options).cameras
 
 

@@ -185,9 +185,11 @@ class Body:
         return rotations, origins
 
     def _joint_rotations(self, q: np.ndarray) -> np.ndarray:
-        """Rotation of every joint in its child's rest frame (..., J, 3, 3) from the coordinates (..., n): ball
-        joints are rotation vectors; hinge-like joints the product of elementary rotations in the order written,
-        each kind of joint computed in one batch.
+        """Rotation of every joint in its child's rest frame (..., J, 3, 3).
+
+        From the coordinates (..., n): ball joints are rotation vectors; hinge-like joints the
+        product of elementary rotations in the order written, each kind of joint computed in one
+        batch.
         """
         out = np.empty(q.shape[:-1] + (len(self.joints), 3, 3))
         for axes, joints, cols in self._joint_kinds:
@@ -201,7 +203,7 @@ class Body:
         return out
 
     def joint_centres(self, origins: np.ndarray) -> np.ndarray:
-        """Centres of the pelvis and the 13 joints (..., 14, 3): the points MPJPE is measured on."""
+        """Centres of the pelvis and the 13 joints (..., 14, 3): the points MPJPE measures."""
         return origins  # part origins are the proximal joint centres; torso's is the pelvis
 
     def distal_ends(self, rotations: np.ndarray, origins: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ rotation (eq. 9) :meth:`Camera.project_with_jacobian`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal, overload
 
 import cv2
 import numpy as np
@@ -82,7 +83,7 @@ def _normalise_model(model: str | None, D: np.ndarray) -> tuple[str, np.ndarray]
 
 @dataclass(eq=False)
 class Camera:
-    """A calibrated camera: intrinsics K, distortion D and the pose of its optical frame in world."""
+    """A calibrated camera: intrinsics K, distortion D and its optical frame's pose in world."""
 
     name: str
     width: int
@@ -138,7 +139,7 @@ class Camera:
             and np.array_equal(self.t_world_cam, other.t_world_cam)
         )
 
-    __hash__ = None  # mutable, compared by value
+    # Mutable and compared by value, so unhashable: defining __eq__ leaves __hash__ None.
 
     # ----------------------------------------------------------------- basics
     @property
@@ -148,7 +149,7 @@ class Camera:
 
     @property
     def coefficients(self) -> np.ndarray:
-        """The 8 OpenCV rational-model coefficients k1, k2, p1, p2, k3, k4, k5, k6 (zero-padded)."""
+        """The 8 OpenCV rational-model coefficients k1, k2, p1, p2, k3, k4, k5, k6, zero-padded."""
         return np.concatenate([self.D, np.zeros(8 - len(self.D))])
 
     @property
@@ -157,7 +158,7 @@ class Camera:
         return bool(np.any(self.D))
 
     def world_to_camera(self, P: np.ndarray) -> np.ndarray:
-        """World points (..., 3) in the camera's optical frame: Pc = R^T (P - t) (eq. 5 inverted)."""
+        """World points (..., 3) in the optical frame: Pc = R^T (P - t) (eq. 5 inverted)."""
         return (np.asarray(P, float) - self.t_world_cam) @ self.R_world_cam
 
     def camera_to_world(self, Pc: np.ndarray) -> np.ndarray:
@@ -169,8 +170,19 @@ class Camera:
         """Distorted normalised coordinates (..., 2) of ideal normalised coordinates (..., 2)."""
         return self._distort(np.asarray(xy, float), jacobian=False)[0]
 
+    @overload
+    def _distort(self, xy: np.ndarray, jacobian: Literal[False]) -> tuple[np.ndarray, None]: ...
+
+    @overload
+    def _distort(
+        self, xy: np.ndarray, jacobian: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
     def _distort(self, xy: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """Distortion of normalised coordinates (..., 2) and optionally its Jacobian (..., 2, 2)."""
+        """Distortion of normalised coordinates (..., 2) and optionally its Jacobian (..., 2, 2).
+
+        The Jacobian is None when not asked for.
+        """
         if not self.has_distortion:
             eye = np.broadcast_to(np.eye(2), xy.shape[:-1] + (2, 2)) if jacobian else None
             return xy, eye
@@ -318,7 +330,10 @@ class Camera:
         return d @ self.R_world_cam.T
 
     def pixel_grid_rays(self, scale: float = 1.0) -> np.ndarray:
-        """Read-only world ray directions (H', W', 3) through every pixel centre of the image resized by ``scale``."""
+        """Read-only world ray directions (H', W', 3) through every pixel centre.
+
+        The pixels are those of the image resized by ``scale``.
+        """
         width, height = self._scaled_size(scale)
         key = (
             float(scale),
@@ -349,7 +364,10 @@ class Camera:
         return max(int(round(self.width * scale)), 1), max(int(round(self.height * scale)), 1)
 
     def scaled(self, scale: float) -> 'Camera':
-        """Return the camera for the image resized by ``scale``: u_small = (u + 0.5) * scale - 0.5."""
+        """Return the camera for the image resized by ``scale``.
+
+        Pixels map as u_small = (u + 0.5) * scale - 0.5.
+        """
         width, height = self._scaled_size(scale)
         K = self.K.copy()
         K[0, :2] *= scale
@@ -397,7 +415,7 @@ class Camera:
             raise ValueError(f'camera {name!r}: eye and target coincide')
         z /= np.linalg.norm(z)
         x = np.cross(z, up)
-        if np.linalg.norm(x) < 1e-9 * max(np.linalg.norm(up), 1e-300):
+        if np.linalg.norm(x) < 1e-9 * max(float(np.linalg.norm(up)), 1e-300):
             x = np.cross(z, np.eye(3)[np.argmin(np.abs(z))])
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
@@ -411,7 +429,10 @@ class Camera:
         return cls(name, width, height, K, np.asarray(D, float), distortion_model, R, eye)
 
     def to_dict(self) -> dict:
-        """Plain-python studio YAML entry: name, width, height, distortion_model, K (9), D, pose."""
+        """Plain-python studio YAML entry.
+
+        Keys: name, width, height, distortion_model, K (9), D, pose.
+        """
         return {
             'name': self.name,
             'width': self.width,
@@ -440,7 +461,7 @@ class Camera:
             data['width'],
             data['height'],
             data['K'],
-            data.get('D') or [],
+            np.asarray(data.get('D') or [], dtype=float),
             data.get('distortion_model', 'plumb_bob'),
             quat_to_matrix(q),
             pose.get('position', (0.0, 0.0, 0.0)),
@@ -542,7 +563,10 @@ def intrinsics_problem(
         return f'{model} takes {N_COEFFS[model]} distortion coefficients, got {len(d)}'
     if expected is not None:
         if (int(width), int(height)) != (expected.width, expected.height):
-            return f"size {width}x{height} differs from the studio's {expected.width}x{expected.height}"
+            return (
+                f"size {width}x{height} differs from the studio's "
+                f'{expected.width}x{expected.height}'
+            )
         if model != expected.distortion_model and (np.any(d) or expected.has_distortion):
             return (
                 f"distortion model {model} differs from the studio's {expected.distortion_model}"

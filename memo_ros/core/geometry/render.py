@@ -50,7 +50,10 @@ def render(
     parts: np.ndarray | None = None,
     normals: bool = False,
 ) -> Rendering:
-    """Render parts posed by (rotations (P,3,3), origins (P,3)) into ``camera`` at ``scale`` of its resolution."""
+    """Render parts posed by (rotations (P,3,3), origins (P,3)) into ``camera``.
+
+    The image has ``scale`` times the camera's resolution.
+    """
     view = camera.scaled(scale) if scale != 1.0 else camera
     rays = camera.pixel_grid_rays(scale)  # (H, W, 3) world unit directions
     height, width = rays.shape[:2]
@@ -83,7 +86,7 @@ def render(
         labels = label[v0:v1, u0:u1].reshape(-1)
         labels[nearer] = i + 1
         label[v0:v1, u0:u1] = labels.reshape(v1 - v0, u1 - u0)
-        if normals:
+        if normal_img is not None:  # normals were asked for
             n_cam = n_part[nearer] @ (np.asarray(camera.R_world_cam).T @ rotations[i]).T
             block_n = normal_img[v0:v1, u0:u1].reshape(-1, 3)
             block_n[nearer] = n_cam
@@ -122,7 +125,10 @@ def _intersect_cylinder(
     length: float,
     want_normals: bool,
 ):
-    """Distance along each ray to the elliptic cylinder (inf = miss) and part-frame normals at the hits."""
+    """Distance along each ray to the elliptic cylinder (inf = miss).
+
+    Also the part-frame normals at the hits (when ``want_normals``).
+    """
     o = rotation.T @ (centre - origin)  # ray origin in the part frame
     d = directions @ rotation  # ray directions in the part frame (N, 3)
     return _hit_local(o, d, axes[0], axes[1], length, want_normals)

@@ -18,7 +18,7 @@ def _as_float(a) -> np.ndarray:
 
 
 def hat(v) -> np.ndarray:
-    """Skew-symmetric matrix (..., 3, 3) of vectors (..., 3), so that hat(a) @ b = a x b."""
+    """Skew-symmetric matrix (..., 3, 3) of vectors (..., 3): the matrix of a times b is a x b."""
     v = _as_float(v)
     out = np.zeros(v.shape[:-1] + (3, 3))
     x, y, z = v[..., 0], v[..., 1], v[..., 2]

@@ -31,7 +31,10 @@ class SurfaceNodes:
     def to_world(
         self, rotations: np.ndarray, origins: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Node positions and normals in world for part poses (rotations (P,3,3), origins (P,3))."""
+        """Node positions and normals in world for part poses.
+
+        The poses are rotations (P,3,3) and origins (P,3).
+        """
         r = rotations[self.part]
         points = np.einsum('mij,mj->mi', r, self.points) + origins[self.part]
         normals = np.einsum('mij,mj->mi', r, self.normals)
@@ -58,10 +61,10 @@ def part_surface(
     points, normals = [side], [side_n]
     fractions = np.arange(1, cap_rings + 1) / (cap_rings + 1)
     for z_cap, sign in ((0.0, -1.0), (shape.length, 1.0)):
-        cap = [np.array([[0.0, 0.0, z_cap]])]
+        cap_parts = [np.array([[0.0, 0.0, z_cap]])]
         for f in fractions:
-            cap.append(np.column_stack([f * ring, np.full(n_around, z_cap)]))
-        cap = np.concatenate(cap)
+            cap_parts.append(np.column_stack([f * ring, np.full(n_around, z_cap)]))
+        cap = np.concatenate(cap_parts)
         points.append(cap)
         normals.append(np.tile([0.0, 0.0, sign], (len(cap), 1)))
     return np.concatenate(points), np.concatenate(normals)

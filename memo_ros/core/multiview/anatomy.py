@@ -141,7 +141,7 @@ class Anatomy:
         return self.clamp(out)
 
     def clamp(self, q: np.ndarray) -> np.ndarray:
-        """Project ``q`` into the anatomical ranges and wrap the other hinge angles into (-pi, pi]."""
+        """Project ``q`` into the anatomical ranges; wrap the other hinge angles into (-pi, pi]."""
         out = np.array(q, float)
         out[..., self.limit_index] = np.clip(
             out[..., self.limit_index], self.limit_low, self.limit_high

@@ -121,7 +121,10 @@ def _carve(
     voxel: float,
     tolerance_px: int,
 ) -> np.ndarray | None:
-    """Centres (N, 3) of the largest connected piece of voxels inside every silhouette that sees them (>= 2)."""
+    """Centres (N, 3) of the largest connected piece of voxels in every silhouette that sees them.
+
+    A voxel counts when at least 2 cameras see it.
+    """
     axes = [np.arange(lo, hi, voxel) + voxel / 2 for lo, hi in zip(low, high)]
     grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 3)
     inside = np.zeros(len(grid), np.int16)

@@ -41,7 +41,7 @@ _BOX_CORNERS = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for
 
 @dataclass
 class ContourRays:
-    """Step 1 for one camera's samples: pixel, outward image normal m and plane normal k_z (world)."""
+    """Step 1 for one camera's samples: pixel, outward image normal m, world plane normal k_z."""
 
     uv: np.ndarray  # (N, 2)
     outward: np.ndarray  # (N, 2) unit image normal pointing away from the silhouette, (-ty, tx)
@@ -527,12 +527,16 @@ def _alignment(
 def _nearest_compatible(
     tree: cKDTree, queries: np.ndarray, k: int, gate_px: float, compatible
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rows of ``queries`` whose ``k`` nearest targets in ``tree`` (within ``gate_px``) hold one passing eq. 13,
-    and the nearest such: (rows, target index, distance).  ``compatible(rows, targets)`` is eq. 13 for those pairs.
+    """Rows of ``queries`` with a target passing eq. 13 among their ``k`` nearest, and the nearest.
 
-    The nearest target alone settles almost every row (it is compatible, or nothing is within the gate), so the
-    ``k`` nearest are only looked up for the rows whose nearest failed or ties with the second (targets at the
-    same pixel, then taken in the tree's order of the ``k``): the answer of examining all ``k`` for every row.
+    Targets are looked up in ``tree`` within ``gate_px``; the result is (rows, target index,
+    distance) of the nearest passing target of each such row.  ``compatible(rows, targets)`` is
+    eq. 13 for those pairs.
+
+    The nearest target alone settles almost every row (it is compatible, or nothing is within the
+    gate), so the ``k`` nearest are only looked up for the rows whose nearest failed or ties with
+    the second (targets at the same pixel, then taken in the tree's order of the ``k``): the answer
+    of examining all ``k`` for every row.
     """
     if k < 2:
         dist, idx = tree.query(queries, k=1, distance_upper_bound=gate_px)
@@ -575,8 +579,10 @@ def assign_forces(
     gate_px: float,
     symmetric: bool = False,
 ) -> Matches:
-    """Each sample to the nearest projected candidate that passes eq. 13 within ``gate_px`` (Steps 2-3); with
-    ``symmetric`` also each candidate to its nearest eq. 13-compatible sample (pairs counted once).
+    """Match each sample to the nearest projected candidate passing eq. 13 within ``gate_px``.
+
+    Steps 2-3; with ``symmetric`` also each candidate to its nearest eq. 13-compatible sample
+    (pairs counted once).
     """
     empty = Matches(np.zeros(0, int), np.zeros(0, int), np.zeros(0))
     if not len(candidates) or not len(rays.uv):

@@ -86,7 +86,7 @@ class ModelNodes:
 
 
 def model_nodes(body: Body, n_around: int = 24, ring_spacing: float = 0.03) -> ModelNodes:
-    """Rings every ``ring_spacing`` m along each part (ends included), ``n_around`` nodes per ring."""
+    """Rings every ``ring_spacing`` m along each part, ends included, ``n_around`` nodes a ring."""
     theta_ring = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
     parts, thetas, zs, rims, a, b = [], [], [], [], [], []
     for i, name in enumerate(PART_NAMES):

@@ -94,7 +94,7 @@ def tangent_rates(q: np.ndarray, qdot: np.ndarray, groups: np.ndarray) -> np.nda
 
 @dataclass
 class ProcessNoise:
-    """White-noise acceleration densities per kind of degree of freedom (continuous, per second)."""
+    """White-noise acceleration densities per kind of degree of freedom, continuous, per second."""
 
     root_translation: float = 2.0  # m/s^2 /sqrt(Hz)
     root_rotation: float = 3.0  # rad/s^2 /sqrt(Hz)

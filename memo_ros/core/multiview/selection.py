@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import time
+from typing import cast
 
 import numpy as np
 
@@ -112,6 +113,8 @@ class Assignment:
 
     def cameras_for(self, part_index: int) -> list[str]:
         """Return the cameras selected for a part, best first."""
+        if self.rank is None:  # never: __post_init__ fills it
+            raise ValueError('Assignment.rank is None')
         row = self.rank[part_index]
         order = np.argsort(np.where(row < 0, len(self.cameras), row), kind='stable')
         return [self.cameras[k] for k in order if row[k] >= 0]
@@ -138,7 +141,7 @@ class Assignment:
             np.full(shape, np.nan),
             np.full(shape, np.nan),
             selected,
-            selected.any(axis=1),
+            cast(np.ndarray, selected.any(axis=1)),  # the stubs type a reduction as maybe scalar
             live,
             MODE_ALL_CAMERAS,
         )
@@ -191,7 +194,10 @@ class ContourModel:
 
     @classmethod
     def from_body(cls, body: Body, spacing: float = 0.02, rim_nodes: int = 24) -> 'ContourModel':
-        """Return generator heights every ``spacing`` m (cell centres) and ``rim_nodes`` around each cap rim."""
+        """Return the contour model of ``body``.
+
+        Generator heights every ``spacing`` m (cell centres) and ``rim_nodes`` around each cap rim.
+        """
         counts = np.maximum(np.ceil(body.lengths / spacing).astype(int), 3)
         side_part = np.repeat(np.arange(len(body.lengths)), counts)
         starts = np.repeat(np.cumsum(counts) - counts, counts)
@@ -359,7 +365,10 @@ class CameraSelector:
     def assign(
         self, q_prev: np.ndarray, q_pred: np.ndarray, alive: dict[str, bool] | None = None
     ) -> Assignment:
-        """Return assignment for frame t from the posterior coordinates of t-1 and the prediction for t."""
+        """Return the assignment for frame t.
+
+        From the posterior coordinates of t-1 and the prediction for t.
+        """
         s = self.settings
         n_parts = len(self.body.lengths)
         rotations, origins = self.body.forward_kinematics(np.stack([q_prev, q_pred]))
@@ -431,8 +440,10 @@ class CameraLiveness:
     SOURCES = ('camera_info', 'contours')
 
     def seen(self, camera: str, stamp_ns: int, source: str, wall: float | None = None) -> None:
-        """Return a message of ``camera`` from ``source`` (camera_info or contours) with this header stamp arrived
-        (at monotonic ``wall`` time, now by default).
+        """Note that a message of ``camera`` from ``source`` with this header stamp arrived.
+
+        ``source`` is camera_info or contours; it arrived at monotonic ``wall`` time, now by
+        default.
         """
         if source not in self.SOURCES:
             raise ValueError(
@@ -455,17 +466,16 @@ class CameraLiveness:
         Judged at monotonic ``wall`` time, now by default.
         """
         wall = time.monotonic() if wall is None else wall
-        if self.first_frame_ns is None:
+        if self.first_frame_ns is None or self.first_wall is None:  # both set here, together
             self.first_frame_ns, self.first_wall = frame_ns, wall
+        first_ns, first_wall = self.first_frame_ns, self.first_wall
         limit = int(round(self.timeout_s * 1e9))
 
         def recent(camera: str, source: str) -> bool:
-            return frame_ns - self.newest_ns.get((camera, source), self.first_frame_ns) <= limit
+            return frame_ns - self.newest_ns.get((camera, source), first_ns) <= limit
 
         def delivering(camera: str) -> bool:
-            since_wall, since_ns = self.contours_arrival.get(
-                camera, (self.first_wall, self.first_frame_ns)
-            )
+            since_wall, since_ns = self.contours_arrival.get(camera, (first_wall, first_ns))
             return frame_ns - since_ns <= limit or wall - since_wall <= self.contours_timeout_s
 
         heard = {c: recent(c, 'camera_info') or recent(c, 'contours') for c in self.cameras}

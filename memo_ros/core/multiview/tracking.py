@@ -130,6 +130,8 @@ class FrameResult:
 class ArticulatedTracker:
     """Tracks the body in a rig of calibrated cameras from their occluding contours."""
 
+    _last_counts: tuple[int, int]  # (matched, unselected) of the last linearisation
+
     def __init__(
         self,
         body: Body,
@@ -181,7 +183,7 @@ class ArticulatedTracker:
         }
 
     def apply_settings(self, settings: TrackerSettings) -> None:
-        """Apply new noises, gates and limits from the next frame on; the current estimate is kept."""
+        """Apply new noises, gates and limits from the next frame on, keeping the estimate."""
         self.settings = settings
         self.model = ConstantVelocity(self.body, settings.process_noise)
         self.ekf.model = self.model
@@ -240,6 +242,8 @@ class ArticulatedTracker:
             self._initialise(stamp_ns, contours, rays)
             initialised = True
         else:
+            if self.stamp_ns is None:  # never: a tracked frame sets it
+                raise RuntimeError('tracking without a previous frame')
             dt = (stamp_ns - self.stamp_ns) * 1e-9
             self.ekf.predict(dt)
         measure = self._measurement_function(contours, rays, masks)
@@ -315,6 +319,8 @@ class ArticulatedTracker:
                 seconds=time.perf_counter() - start,
                 reason=f'no camera saw the body for {self.settings.lost_after} frames',
             )
+        if self.stamp_ns is None:  # never: a tracked frame sets it
+            raise RuntimeError('tracking without a previous frame')
         self.ekf.predict((stamp_ns - self.stamp_ns) * 1e-9)
         self.stamp_ns = stamp_ns
         rotations, origins = self.body.forward_kinematics(self.ekf.q)
@@ -362,7 +368,7 @@ class ArticulatedTracker:
     def _follow_twin(
         self, contours, rays, masks, samples: int, dt: float, start_twin: bool, free: np.ndarray
     ) -> None:
-        """Track the leader's twin beside it and weigh the two by their fit to this frame's contours.
+        """Track the leader's twin beside it; weigh the two by their fit to this frame's contours.
 
         The twin starts at every initialisation from the silhouettes, every
         ``twin_recheck`` frames and at an inconsistent frame.  The evidence is
@@ -583,10 +589,10 @@ class ArticulatedTracker:
             if (
                 not s.symmetric
             ):  # a sample whose nearest node is not on the predicted outline is dropped
-                usable = outline.usable([f[m.node] for f, m in zip(first, forces)])
+                on_outline = outline.usable([f[m.node] for f, m in zip(first, forces)])
                 forces = [
                     Matches(m.sample[on], m.node[on], m.distance[on])
-                    for m, on in zip(forces, usable)
+                    for m, on in zip(forces, on_outline)
                 ]
             for cam, cand, m in zip(cams, cands, forces):
                 cam_name = cam.name
@@ -643,11 +649,15 @@ class ArticulatedTracker:
                 else []
             )
             for H, r, sigma in normal_rows:
-                rows_H.append(H), rows_r.append(r), rows_s.append(sigma)
+                rows_H.append(H)
+                rows_r.append(r)
+                rows_s.append(sigma)
             self._last_counts = (matched, unselected)
             limits = self._limit_rows(q)
             if limits is not None:
-                rows_H.append(limits[0]), rows_r.append(limits[1]), rows_s.append(limits[2])
+                rows_H.append(limits[0])
+                rows_r.append(limits[1])
+                rows_s.append(limits[2])
             if not rows_r:
                 return Measurements.empty(n)
             return Measurements(
@@ -711,10 +721,19 @@ def _mapped_covariance(P: np.ndarray, M: np.ndarray) -> np.ndarray:
     return T @ P @ T.T
 
 
+def _node_keys(cand: Candidates) -> np.ndarray:
+    """Return the node keys of outline candidates (rig_outline_candidates gives them)."""
+    if cand.key is None:
+        raise ValueError('outline candidates without node keys')
+    return cand.key
+
+
 class FirstOutline:
-    """The cameras' candidate nodes at a frame's first linearisation and which of them are on the predicted outline
-    there (:func:`rig_on_outline`).  The test is made on demand, once per node and frame, for all cameras at once:
-    only the nodes that samples are tied to need it, and the iterations keep the first linearisation's answer.
+    """The cameras' candidate nodes at a frame's first linearisation and which are on the outline.
+
+    Which of them are on the predicted outline there (:func:`rig_on_outline`).  The test is made
+    on demand, once per node and frame, for all cameras at once: only the nodes that samples are
+    tied to need it, and the iterations keep the first linearisation's answer.
     """
 
     def __init__(
@@ -728,19 +747,21 @@ class FirstOutline:
     ) -> None:
         self.cameras, self.cands, self.rotations, self.origins = cameras, cands, rotations, origins
         self.body, self.probe_px = body, probe_px
-        self._order = [np.argsort(c.key) for c in cands]
-        self.keys = [c.key[o] for c, o in zip(cands, self._order)]  # sorted, per camera
+        self._order = [np.argsort(_node_keys(c)) for c in cands]
+        self.keys = [_node_keys(c)[o] for c, o in zip(cands, self._order)]  # sorted, per camera
         self._state = [
             np.full(len(c), -1, np.int8) for c in cands
         ]  # -1 untested, 0 off the outline, 1 on it
 
     def index(self, k: int, cand: Candidates) -> np.ndarray:
-        """(C,) where each node of camera k's ``cand`` (all among its :attr:`keys`) is among the first
-        linearisation's candidates.
+        """Return (C,) where each node of camera k's ``cand`` is among the first candidates.
+
+        The nodes are all among its :attr:`keys`; the first candidates are the first
+        linearisation's.
         """
         if cand is self.cands[k]:
             return np.arange(len(cand))
-        return self._order[k][np.searchsorted(self.keys[k], cand.key)]
+        return self._order[k][np.searchsorted(self.keys[k], _node_keys(cand))]
 
     def usable(self, index: list[np.ndarray]) -> list[np.ndarray]:
         """Per camera.
@@ -777,7 +798,7 @@ def sample_spacing(table: np.ndarray) -> float:
         return REFERENCE_SPACING_PX
     same = (
         table['contour'][1:] == table['contour'][:-1]
-        if 'contour' in table.dtype.names
+        if 'contour' in (table.dtype.names or ())
         else np.ones(len(table) - 1, bool)
     )
     steps = np.hypot(np.diff(table['x']), np.diff(table['y']))[same]

@@ -86,11 +86,11 @@ def background_image(camera: Camera, seed: int = 0) -> np.ndarray:
         + 15.0 * np.sin(23 * azimuth + 3)
     )
     image = np.where(floor, floor_img, wall_img)
-    texture = rng.normal(0.0, 1.0, (camera.height // 4 + 1, camera.width // 4 + 1)).astype(
+    noise = rng.normal(0.0, 1.0, (camera.height // 4 + 1, camera.width // 4 + 1)).astype(
         np.float32
     )
     texture = cv2.resize(
-        cv2.GaussianBlur(texture, (0, 0), 1.5),
+        cv2.GaussianBlur(noise, (0, 0), 1.5),
         (camera.width, camera.height),
         interpolation=cv2.INTER_CUBIC,
     )

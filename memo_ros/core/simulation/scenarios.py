@@ -64,12 +64,31 @@ class Scenario:
 def studio_cameras(width: int = 640, height: int = 480) -> list[Camera]:
     """Three mutually orthogonal cameras: in front of, left of, and above the studio's centre."""
     f = 650.0 * width / 640.0
-    common = dict(width=width, height=height, fx=f)
     return [
-        Camera.look_at('cam_front', eye=(4.0, 0.0, 1.0), target=(0.0, 0.0, 1.0), **common),
-        Camera.look_at('cam_side', eye=(0.0, 4.0, 1.0), target=(0.0, 0.0, 1.0), **common),
         Camera.look_at(
-            'cam_top', eye=(0.0, 0.0, 4.5), target=(0.0, 0.0, 0.0), up=(1.0, 0.0, 0.0), **common
+            'cam_front',
+            eye=(4.0, 0.0, 1.0),
+            target=(0.0, 0.0, 1.0),
+            width=width,
+            height=height,
+            fx=f,
+        ),
+        Camera.look_at(
+            'cam_side',
+            eye=(0.0, 4.0, 1.0),
+            target=(0.0, 0.0, 1.0),
+            width=width,
+            height=height,
+            fx=f,
+        ),
+        Camera.look_at(
+            'cam_top',
+            eye=(0.0, 0.0, 4.5),
+            target=(0.0, 0.0, 0.0),
+            up=(1.0, 0.0, 0.0),
+            width=width,
+            height=height,
+            fx=f,
         ),
     ]
 
@@ -122,7 +141,7 @@ def arc_walk(
     cycle_length: float,
     phase0: float = 0.0,
 ) -> Trajectory:
-    """Return walking counter-clockwise on a circle around the origin, heading along the tangent."""
+    """Return walking counter-clockwise on a circle around the origin, facing along the tangent."""
     walker = WalkingModel(body)
 
     def trajectory(t: np.ndarray):

@@ -198,7 +198,10 @@ def motion_regions(
 
 
 def convex_regions(mask: np.ndarray, min_area: int = 50) -> np.ndarray:
-    """Each 8-connected region of at least ``min_area`` pixels replaced by its convex hull (bool)."""
+    """Each 8-connected region of at least ``min_area`` pixels replaced by its convex hull.
+
+    A bool image.
+    """
     m = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     out = np.zeros(m.shape, np.uint8)
@@ -232,9 +235,12 @@ def with_fallback(
     fallback_count: np.ndarray,
     min_seen: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Return the median and count of ``fallback`` where ``image`` was seen fewer than ``min_seen`` times and it was not:
-    around a person who moves all the time, the motion patches and grown person masks exclude a ring in every
-    frame, but the tracked body alone leaves it seen (inpainting would guess it, and flag it in every frame).
+    """Return ``image`` and ``count`` with ``fallback``'s median and count where it was needed.
+
+    That is where ``image`` was seen fewer than ``min_seen`` times and ``fallback`` was not: around
+    a person who moves all the time, the motion patches and grown person masks exclude a ring in
+    every frame, but the tracked body alone leaves it seen (inpainting would guess it, and flag it
+    in every frame).
     """
     use = (count < min_seen) & (fallback_count >= min_seen)
     return np.where(use[..., None], fallback, image), np.where(use, fallback_count, count)
@@ -262,7 +268,7 @@ def person_masks(
     threshold: float,
     min_area: int = 100,
 ) -> np.ndarray:
-    """Per frame, the regions that differ from the background and touch the frame's motion region."""
+    """Per frame, the regions that differ from the background and touch its motion region."""
     masks = np.zeros(frames.shape[:3], bool)
     workspace = Workspace()
     for k, frame in enumerate(frames):
@@ -281,7 +287,10 @@ def person_masks(
 def noise_level(
     frames: np.ndarray, image: np.ndarray, excluded: np.ndarray
 ) -> tuple[np.ndarray, float]:
-    """Per-pixel robust noise (1.4826 MAD of the clean views, largest channel) and the image's median of it."""
+    """Per-pixel robust noise and the image's median of it.
+
+    The noise is 1.4826 MAD of the clean views, of the largest channel.
+    """
     deviation = (
         np.abs(frames.astype(np.int16) - image.astype(np.int16)).max(axis=-1).astype(np.uint8)
     )
@@ -378,6 +387,8 @@ def estimate_background(
         excluded = moving | np.stack(
             [cv2.dilate(p.view(np.uint8), kernel).view(bool) for p in person]
         )
+    if model is None:  # the loop above runs at least once
+        raise AssertionError('no background model estimated')
     return model
 
 
@@ -438,7 +449,10 @@ class SequenceSegmenter:
         self._flagged: np.ndarray | None = None
 
     def set_model(self, model: BackgroundModel) -> None:
-        """Use a given background model (e.g. estimated offline from the whole sequence) instead of learning."""
+        """Use a given background model instead of learning one.
+
+        For example one estimated offline from the whole sequence.
+        """
         self.model = model
         self._frames = []
 
@@ -474,7 +488,11 @@ class SequenceSegmenter:
         grown = cv2.dilate(
             occupied.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
         )
-        if self._previous is None or self._previous.shape != frame.shape:
+        if (
+            self._previous is None
+            or self._previous.shape != frame.shape
+            or self._still_run is None  # never: learn() sets it with _previous
+        ):
             self._still_run = np.zeros(frame.shape[:2], np.int16)
         else:
             change = cv2.absdiff(frame, self._previous).reshape(frame.shape).max(axis=-1)

@@ -41,8 +41,7 @@ BASIS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
 
 def design_matrix() -> np.ndarray:
     """Rohr's X: rows (1, x, y, x^2, xy, y^2) over the 5x5 offsets, row-major in (y, x) (25x6)."""
-    y, x = np.meshgrid(_OFFSETS, _OFFSETS, indexing='ij')
-    x, y = x.ravel(), y.ravel()
+    y, x = (grid.ravel() for grid in np.meshgrid(_OFFSETS, _OFFSETS, indexing='ij'))
     return np.stack([np.ones(25), x, y, x * x, x * y, y * y], axis=1)
 
 
@@ -240,6 +239,9 @@ class ChangeDetector:
         return result
 
     def update(self, frame: np.ndarray) -> np.ndarray | None:
-        """Return the changed pixels of ``frame`` against the previous frame (bool, valid until the next call), None at first."""
+        """Return the changed pixels of ``frame`` against the previous frame, None at first.
+
+        A bool image, valid until the next call.
+        """
         result = self.detect(frame)
         return None if result is None else result.mask

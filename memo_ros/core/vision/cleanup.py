@@ -69,7 +69,7 @@ def _cleanup_step(m: np.ndarray, delete_below: int, fill_above: int) -> np.ndarr
 
 
 def _fill_holes(m: np.ndarray) -> np.ndarray:
-    """Mark unflagged regions not connected to the border of ``m`` (0/1 uint8 in, 0/1 uint8 out)."""
+    """Mark unflagged regions not connected to the border of ``m`` (0/1 uint8 in and out)."""
     padded = cv2.copyMakeBorder(m, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     cv2.floodFill(padded, None, (0, 0), 2)  # the outside, via the zero frame: 2
     return (padded[1:-1, 1:-1] != 2).view(np.uint8)  # flags (1) and holes (0) -> 1

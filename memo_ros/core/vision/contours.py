@@ -216,7 +216,7 @@ class ContourPipeline:
     STAGES = ('segment', 'cleanup', 'contours', 'edges')
 
     def __init__(self, settings: PipelineSettings | None = None, **overrides) -> None:
-        """Return settings as a :class:`PipelineSettings` and/or keyword overrides of its fields."""
+        """Take settings as a :class:`PipelineSettings` and/or keyword overrides of its fields."""
         settings = replace(settings or PipelineSettings(), **overrides)
         if settings.contour_step <= 0:
             raise ValueError(f'contour_step must be positive, got {settings.contour_step}')
@@ -231,7 +231,7 @@ class ContourPipeline:
         self.segmenter.reset()
 
     def set_background(self, background: np.ndarray) -> None:
-        """Background segmenter: use this grey picture of the empty scene instead of learning one."""
+        """Background segmenter: use this grey picture of the empty scene, not a learnt one."""
         if not isinstance(self.segmenter.method, BackgroundSegmenter):
             raise ValueError('set_background needs the background segmenter')
         self.segmenter.method.set_background(background)

@@ -39,7 +39,7 @@ EDGE_DTYPE = np.dtype(
 def _roi(
     box: tuple[int, int, int, int] | None, margin: int, shape: tuple[int, int]
 ) -> tuple[int, int, int, int]:
-    """Return the rectangle (x0, y0, x1, y1) of ``box`` grown by ``margin`` and clipped to the image."""
+    """Return ``box`` grown by ``margin`` and clipped to the image, as (x0, y0, x1, y1)."""
     height, width = shape
     if box is None:
         return 0, 0, width, height
@@ -119,14 +119,14 @@ def split_chains(
     points, chain, loops = _loop_vertices(points, chain, tolerance)
     starts = np.flatnonzero(np.r_[True, chain[1:] != chain[:-1]])
     ends = np.r_[starts[1:], len(points)]
-    vertices = [
-        loops.get(int(chain[a]))
+    pieces = [
+        loops[int(chain[a])]
         if loops and int(chain[a]) in loops
         else cv2.approxPolyDP(points[a:b].reshape(-1, 1, 2), tolerance, False).reshape(-1, 2)
         for a, b in zip(starts, ends)
     ]
-    counts = np.array([len(v) for v in vertices])
-    vertices = np.concatenate(vertices)
+    counts = np.array([len(v) for v in pieces])
+    vertices = np.concatenate(pieces)
     first = np.r_[0, np.cumsum(counts)[:-1]]
     inner = np.ones(len(vertices), bool)
     inner[first] = False
@@ -227,7 +227,7 @@ def merge_boxes(boxes: list[tuple[int, int, int, int]]) -> list[tuple[int, int, 
 
     Until none overlap.
     """
-    merged = [tuple(int(v) for v in b) for b in boxes]
+    merged = [(int(x), int(y), int(w), int(h)) for x, y, w, h in boxes]
     changed = True
     while changed and len(merged) > 1:
         changed = False

@@ -123,7 +123,7 @@ def union_box(regions: list[Region]) -> tuple[int, int, int, int] | None:
 
 # -------------------------------------------------------------- segmenters
 class ChangeSegmenter:
-    """Raw person mask from Rohr's change detection against the previous frame (eq. 1, j = k - 1)."""
+    """Raw person mask from Rohr's change detection against the previous frame (eq. 1, j = k-1)."""
 
     def __init__(self, threshold: float = 12.0, noise_factor: float = NOISE_FACTOR) -> None:
         """``threshold``.
@@ -196,29 +196,32 @@ class BackgroundSegmenter:
         self._scaled = None
         self._learning, self._count = None, 0
 
-    def _reference(self, grey: np.ndarray) -> np.ndarray:
+    def _reference(self, background: np.ndarray, grey: np.ndarray) -> np.ndarray:
         """Return the background.
 
         Scaled by the frame's global gain (slow lighting changes) when that is on.
         """
         if not self.compensate_gain:
-            return self.background
-        sample_bg = self.background[::8, ::8].astype(np.float32)
+            return background
+        sample_bg = background[::8, ::8].astype(np.float32)
         sample = grey[::8, ::8].astype(np.float32)
         valid = sample_bg > 16.0
         gain = float(np.median(sample[valid] / sample_bg[valid])) if valid.any() else 1.0
         self.gain = gain
         if abs(gain - 1.0) < 0.005:  # below half a grey level at mid grey: no rescaling
-            return self.background
+            return background
         if self._scaled is None or self._scaled.shape != grey.shape:
             self._scaled = np.empty(grey.shape, np.float32)
-        return cv2.multiply(self.background, gain, dst=self._scaled, dtype=cv2.CV_32F)
+        # OpenCV takes a scalar factor; its stubs admit only arrays (opencv-python#1008)
+        return cv2.multiply(  # type: ignore[call-overload]
+            background, gain, dst=self._scaled, dtype=cv2.CV_32F
+        )
 
     def segment(self, grey: np.ndarray) -> ChangeResult | None:
         """Eq. (1) against the background (raw mask, difference, noise), None while learning."""
         grey = np.asarray(grey)
         if self.background is not None and self.background.shape == grey.shape:
-            reference = self._reference(grey)
+            reference = self._reference(self.background, grey)
             frame = grey if reference.dtype == grey.dtype else grey.astype(np.float32)
             return detect_changes(
                 frame, reference, self.threshold, self.noise_factor, self.workspace
@@ -277,9 +280,7 @@ def refine_boundary(
         borderType=cv2.BORDER_CONSTANT,
         borderValue=0,
     )
-    strong = cv2.compare(
-        cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_GT
-    )  # 0 / 255
+    strong = _compare_scalar(_absolute(difference), float(pixel_threshold), cv2.CMP_GT)  # 0 / 255
     band = cv2.bitwise_and(
         cv2.bitwise_and(raw.view(np.uint8), filled.view(np.uint8)), strong
     )  # 0 / 1
@@ -300,20 +301,32 @@ def carve_background_channels(
     # per-pixel test is exact (noise-free frames) the background reaching in through the slit is
     # removed;
     # unchanged pixels enclosed by the person (a part with the background's grey) stay.
-    unchanged = cv2.compare(
-        cv2.absdiff(difference, 0.0), float(pixel_threshold), cv2.CMP_LE
+    unchanged = _compare_scalar(
+        _absolute(difference), float(pixel_threshold), cv2.CMP_LE
     )  # 0 / 255
-    free = cv2.bitwise_or(unchanged, cv2.compare(mask.view(np.uint8), 0, cv2.CMP_EQ))
+    free = cv2.bitwise_or(unchanged, _compare_scalar(mask.view(np.uint8), 0, cv2.CMP_EQ))
     free = cv2.copyMakeBorder(free, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=255)
     _, labels = cv2.connectedComponents(free, connectivity=4)
     outside = labels[1:-1, 1:-1] == labels[0, 0]
     return mask & ~outside
 
 
+# OpenCV takes a Python number for the second operand of compare and absdiff; its generated stubs
+# admit only arrays (opencv-python#1008), so the two calls with a scalar are ignored here only.
+def _compare_scalar(src: np.ndarray, value: float, cmpop: int) -> np.ndarray:
+    """cv2.compare of an image with a number: 255 where it holds, else 0 (uint8)."""
+    return cv2.compare(src, value, cmpop)  # type: ignore[call-overload]
+
+
+def _absolute(src: np.ndarray) -> np.ndarray:
+    """|src| per pixel, by cv2.absdiff against 0 (saturated, in src's type)."""
+    return cv2.absdiff(src, 0.0)  # type: ignore[call-overload]
+
+
 # -------------------------------------------------------------------- facade
 @dataclass
 class Segmentation:
-    """A frame's segmentation: raw and cleaned masks, kept regions and their enclosing rectangle."""
+    """A frame's segmentation: raw and cleaned masks, kept regions and their bounding rectangle."""
 
     raw: np.ndarray  # (H, W) bool: what the segmenter flagged
     mask: np.ndarray  # (H, W) bool: cleaned, only the kept regions
@@ -359,7 +372,7 @@ class Segmenter:
     """Raw mask by the named segmenter, then cleanup, boundary refinement and region selection."""
 
     def __init__(self, settings: SegmenterSettings | None = None, **overrides) -> None:
-        """Return settings as a :class:`SegmenterSettings` and/or keyword overrides of its fields."""
+        """Take settings as a :class:`SegmenterSettings` and/or keyword overrides of its fields."""
         settings = replace(settings or SegmenterSettings(), **overrides)
         if settings.segmenter not in SEGMENTERS:
             raise ValueError(
@@ -368,6 +381,7 @@ class Segmenter:
         if settings.keep not in KEEP_MODES:
             raise ValueError(f'keep must be one of {", ".join(KEEP_MODES)}, got {settings.keep!r}')
         self.settings = settings
+        self.method: ChangeSegmenter | SequenceSegmenter | BackgroundSegmenter
         if settings.segmenter == 'change':
             self.method = ChangeSegmenter(settings.threshold, settings.noise_factor)
         elif settings.segmenter == 'sequence':
@@ -392,7 +406,7 @@ class Segmenter:
         return self.settings.segmenter == 'sequence'
 
     def reset(self) -> None:
-        """Forget the frame history (previous frame or learnt background) and the tracked region."""
+        """Forget the frame history (previous frame or learnt background) and tracked region."""
         self.method.reset()
         self.roi = self.previous = None
 
@@ -423,7 +437,7 @@ class Segmenter:
         return cv2.dilate(self.previous.view(np.uint8), kernel).view(bool)
 
     def refine(self, change: ChangeResult) -> Segmentation:
-        """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) result."""
+        """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) mask."""
         s = self.settings
         raw = change.mask
         cleaned = cleanup(raw, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)

@@ -69,7 +69,7 @@ def body_region(
 
 def tracked_person(
     camera: Camera,
-    bodies: dict[int, tuple],
+    bodies: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
     stamps: list[int],
     shape: tuple[int, int],
     margin_px: float,

@@ -46,7 +46,10 @@ class GaitCurves:
         self.knots = x
 
     def angle(self, name: str, phase: np.ndarray | float, derivative: int = 0) -> np.ndarray:
-        """Angle ``name`` (rad) or its derivative w.r.t. the cycle fraction at ``phase`` (wrapped)."""
+        """Angle ``name`` (rad) or its derivative w.r.t. the cycle fraction at ``phase``.
+
+        ``phase`` is wrapped into [0, 1).
+        """
         return self.splines[name](np.mod(phase, 1.0), derivative)
 
 
@@ -71,7 +74,7 @@ class WalkingModel:
         return self._pelvis_height(np.mod(pose, 1.0))
 
     def posture(self, pose: np.ndarray | float) -> np.ndarray:
-        """Joint coordinates at ``pose`` with the pelvis at the world origin, facing +x (..., n)."""
+        """Joint coordinates (..., n) at ``pose``, pelvis at the world origin, facing +x."""
         pose = np.asarray(pose, float)
         q = np.zeros(pose.shape + (self.body.n_coordinates,))
         c = self.curves

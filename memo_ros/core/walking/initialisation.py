@@ -31,7 +31,7 @@ class SingleEstimate:
 
 @dataclass
 class LineChoice:
-    """The two-lines decision: the chosen line's pose at image 0 and slope, and how it was chosen."""
+    """The two-lines decision: the chosen line's pose at image 0, its slope, how it was chosen."""
 
     phase0: float  # pose at image number 0 on the chosen line (unwrapped)
     slope: float  # pose per image
@@ -54,7 +54,7 @@ def two_lines(
     slopes: tuple[float, float] = (0.01, 0.08),
     tolerance: float = 0.05,
 ) -> LineChoice:
-    """Group pose estimates onto two lines half a cycle apart and choose one by the paper's rule."""
+    """Group pose estimates onto two lines half a cycle apart; choose one by the paper's rule."""
     k = np.asarray(images, float)
     pose = np.mod(np.asarray(poses, float), 1.0)
     sim = np.asarray(similarities, float)
@@ -91,7 +91,10 @@ def two_lines(
 def starting_state(
     estimates: list[SingleEstimate], at_image: float, choice: LineChoice
 ) -> np.ndarray:
-    """p_0 = (X, X', Y, 0, Z, 0, pose, pose') at image ``at_image`` from the regressions and medians."""
+    """Return p_0 = (X, X', Y, 0, Z, 0, pose, pose') at image ``at_image``.
+
+    From the regressions and medians of the estimates.
+    """
     k = np.array([e.image for e in estimates])
     X = np.array([e.X for e in estimates])
     slope_x, intercept_x = np.polyfit(k, X, 1)

@@ -83,7 +83,10 @@ class WalkingKalman:
         self.R = measurement_noise(self.params)
 
     def predict(self, dt: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-        """p*_k = Phi p_{k-1} (eq. 14), P*_k = Phi P Phi^T + Q (eq. 15); the filter now holds them."""
+        """Predict p*_k = Phi p_{k-1} (eq. 14), P*_k = Phi P Phi^T + Q (eq. 15).
+
+        The filter now holds them.
+        """
         phi = transition(dt)
         self.p = phi @ self.p
         self.P = phi @ self.P @ phi.T + process_noise(self.params, dt)

@@ -82,7 +82,10 @@ def outline_segments(
     high[..., 2] = lengths[:, None]
     local_start = np.concatenate([low, low[:, :1], high[:, :1]], 1)  # gen 1, gen 2, cap 0, cap L
     local_end = np.concatenate([high, low[:, 1:], high[:, 1:]], 1)
-    to_world = lambda p: np.einsum('pij,pkj->pki', rotations, p) + origins[:, None, :]
+
+    def to_world(p: np.ndarray) -> np.ndarray:
+        return np.einsum('pij,pkj->pki', rotations, p) + origins[:, None, :]
+
     starts, ends = to_world(local_start), to_world(local_end)
     parts = np.repeat(np.arange(n), 4)
     kinds = np.tile([SIDE, SIDE, CAP, CAP], n)
@@ -157,7 +160,7 @@ def visible_contours(
 
 
 def _labels(label: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Label image values at pixel positions (..., 2), nearest pixel; -1 outside the image or NaN."""
+    """Label image values at pixel positions (..., 2), nearest pixel; -1 outside or at NaN."""
     h, w = label.shape
     finite = np.isfinite(pts).all(-1)
     u = np.where(finite, np.rint(np.nan_to_num(pts[..., 0])), -1).astype(np.int64)

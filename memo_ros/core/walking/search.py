@@ -78,7 +78,8 @@ class WalkerModel:
         hit = self._cache.get(key)
         if hit is not None and np.linalg.norm(hit[0] - position) <= self.reuse_distance:
             return hit
-        contours = self.contours(*position, float(np.mod(pose, 1.0)), heading)
+        X, Y, Z = position
+        contours = self.contours(X, Y, Z, float(np.mod(pose, 1.0)), heading)
         self.renderings += 1
         if self.reuse_distance > 0:
             self._cache[key] = (position.copy(), contours)
@@ -89,6 +90,8 @@ class WalkerModel:
 
         Rad about world z.
         """
+        if self.walking is None:
+            raise RuntimeError('WalkerModel.walking is None: __post_init__ sets it')
         q = self.walking.coordinates(pose, X, Z, heading)
         q[..., 2] += Y
         return q

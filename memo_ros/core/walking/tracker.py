@@ -113,6 +113,8 @@ class WalkingTracker:
     # ------------------------------------------------------------------ step
     def image_number(self, stamp_ns: int) -> float:
         """Image number from the stamp: 1 for the first rectangle's frame."""
+        if self.first_stamp is None:
+            raise RuntimeError('image numbers count from the first rectangle: none seen yet')
         return 1.0 + round((stamp_ns - self.first_stamp) * 1e-9 * self.settings.frame_rate)
 
     def step(self, stamp_ns: int, box_corners, edges) -> StepResult:
@@ -205,12 +207,15 @@ class WalkingTracker:
     # -------------------------------------------------------------- tracking
     def _track(self, stamp_ns: int, edges: np.ndarray) -> StepResult:
         s = self.settings
+        kalman, heading = self.filter, self.heading
+        if self.last_stamp is None or kalman is None or heading is None:
+            raise RuntimeError('tracking before the initialization ended')  # _start_tracking sets
         dt = round((stamp_ns - self.last_stamp) * 1e-9 * s.frame_rate)
         if dt < 1:
             return StepResult(stamp_ns, self.state, event='stale_stamp')
         self.last_stamp = stamp_ns
         image = self.image_number(stamp_ns)
-        p, P = self.filter.predict(dt)  # eq. 14, 15
+        p, P = kalman.predict(dt)  # eq. 14, 15
         if len(edges) == 0:
             self.missed += 1
             if self.missed > s.lost_after:
@@ -235,10 +240,10 @@ class WalkingTracker:
             poses,
             grid_offsets(half_x, s.step_x),
             grid_offsets(half_y, s.step_y),
-            self.heading,
+            heading,
         )
         z = np.array([found.X, found.Y, p[4], p[6] + wrap(found.pose - p[6])])
-        p, P = self.filter.update(z)  # eq. 16-18
+        p, P = kalman.update(z)  # eq. 16-18
         return StepResult(
             stamp_ns,
             self.state,

@@ -198,7 +198,10 @@ class BagPlayer:
             return
 
     def unmatched_topics(self) -> list[str]:
-        """Return the published topics with fewer matched subscriptions than ``options.wait_for_subscribers``."""
+        """Return the published topics with too few matched subscriptions.
+
+        Fewer than ``options.wait_for_subscribers``.
+        """
         need = self.options.wait_for_subscribers
         seen = {}
         for publisher in self.publishers.values():

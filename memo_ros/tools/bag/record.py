@@ -47,7 +47,7 @@ ALL_TOPICS_PERIOD = 0.5  # seconds between two looks at the graph with --all
 
 
 def rosbags_qos(profile) -> Qos:
-    """Return an rclpy QoSProfile (as offered by a publisher) as the rosbags Qos written into the metadata."""
+    """Return an rclpy QoSProfile, as a publisher offers it, as the rosbags Qos of the metadata."""
 
     def duration(value) -> QosTime:
         ns = value.nanoseconds
@@ -162,7 +162,7 @@ class BagRecorder:
         }
 
     def discover(self) -> list[str]:
-        """Subscribe to requested topics that appeared in the graph; the topics newly subscribed."""
+        """Subscribe to requested topics that appeared in the graph; return the new ones."""
         added = []
         for topic, types in sorted(self._candidates().items()):
             reason = self._subscribe(topic, types)

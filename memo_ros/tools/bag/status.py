@@ -10,7 +10,7 @@ STATUS_PERIOD = 0.2  # seconds between two updates of the terminal status line
 
 
 class StatusLine:
-    """One stderr line rewritten with \\r at most five times a second (only when enabled)."""
+    r"""One stderr line rewritten with \r at most five times a second (only when enabled)."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled

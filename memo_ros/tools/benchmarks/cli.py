@@ -64,7 +64,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _suite(name: str):
-    """(measure(args) -> dict, print(report)) of a benchmark suite; the node suites import lazily."""
+    """Return (measure(args) -> dict, print(report)) of a benchmark suite.
+
+    The node suites are imported lazily.
+    """
     if name == 'contours':
         from memo_ros.tools.benchmarks.contours import (
             print_contour_benchmark,

@@ -26,14 +26,22 @@ SIZE = (640, 480)
 TIMED_FRAMES = 50
 ENCODINGS = ('mono8', 'bgr8')
 SEGMENTERS = {  # segmenter -> settings it runs with (the recommended defaults)
-    'background': dict(segmenter='background', threshold=4.0, background_frames=10, keep='all'),
-    'change': dict(segmenter='change', threshold=12.0, keep='largest'),
+    'background': {
+        'segmenter': 'background',
+        'threshold': 4.0,
+        'background_frames': 10,
+        'keep': 'all',
+    },
+    'change': {'segmenter': 'change', 'threshold': 12.0, 'keep': 'largest'},
 }
 STAGES = ('convert', 'segment', 'cleanup', 'contours', 'edges')
 
 
 def _frames(bag: Path) -> list[tuple]:
-    """Return the camera's image messages as (encoding, height, width, step, data, is_bigendian) tuples."""
+    """Return the camera's image messages as tuples.
+
+    Each is (encoding, height, width, step, data, is_bigendian).
+    """
     from memo_ros.ros.bagio import read_messages
 
     frames = []

@@ -97,7 +97,7 @@ def renderer_times(repeat: int) -> list[dict]:
 
 @contextmanager
 def stage_timer(module, stages: dict[str, tuple[str, ...]]) -> Iterator[dict[str, float]]:
-    """Temporarily wrap the named functions of ``module`` so their calls add to per-stage seconds."""
+    """Temporarily wrap the named functions of ``module``: their calls add to per-stage seconds."""
     totals = dict.fromkeys(stages, 0.0)
     originals = {}
 
@@ -124,7 +124,10 @@ def stage_timer(module, stages: dict[str, tuple[str, ...]]) -> Iterator[dict[str
 
 @contextmanager
 def timed_writer(module, totals: dict[str, float], stage: str) -> Iterator[None]:
-    """Temporarily make the module's BagWriter add its write and close time (CDR, mcap) to ``stage``."""
+    """Temporarily make the module's BagWriter add its write and close time to ``stage``.
+
+    That is the CDR serialization and the mcap writing.
+    """
     original = module.BagWriter
 
     class TimedWriter(original):
@@ -146,7 +149,7 @@ def timed_writer(module, totals: dict[str, float], stage: str) -> Iterator[None]
 
 
 def simulator_throughput(frames: int = SIM_FRAMES) -> dict:
-    """Frames/s of :func:`simulate` for studio-arm at 640x480 into a temporary bag, split by stage."""
+    """Frames/s of :func:`simulate` for studio-arm at 640x480 into a temporary bag, by stage."""
     from memo_ros.core.simulation.imaging import ImagingOptions
     import memo_ros.tools.simulate as sim_module
 
@@ -167,7 +170,7 @@ def simulator_throughput(frames: int = SIM_FRAMES) -> dict:
             wall = time.perf_counter() - start
         bag_bytes = sum(f.stat().st_size for f in (Path(tmp) / 'bag').rglob('*') if f.is_file())
     camera_frames = result.frames * len(result.cameras)
-    stages = {stage: seconds for stage, seconds in totals.items()}
+    stages = dict(totals)
     stages['other'] = max(wall - sum(totals.values()), 0.0)
     return {
         'scenario': SIM_SCENARIO,

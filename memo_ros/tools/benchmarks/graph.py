@@ -185,7 +185,7 @@ def run_rate(
         with ros_session('memo_graph_benchmark', domain_id) as (node, executor):
             probe = Probe(node, cameras, restamper.frames, on_processed)
             selector = any(label == 'selector_node' for label in nodes.values())
-            options = dict(rate=rate_hz / bag_hz, wait_timeout=GRAPH_TIMEOUT)
+            options = {'rate': rate_hz / bag_hz, 'wait_timeout': GRAPH_TIMEOUT}
             players = [
                 BagPlayer(
                     node,
@@ -290,7 +290,10 @@ def _wait_for_graph(
 
 
 def _settle(executor, pids: dict[int, str]) -> tuple:
-    """Spin SETTLE s with the graph up and idle; the CPU snapshots before and after (the idle CPU)."""
+    """Spin SETTLE s with the graph up and idle; return the CPU snapshots before and after.
+
+    Their difference is the idle CPU.
+    """
     before = cpu_snapshot(pids)
     settle = time.monotonic() + SETTLE
     while time.monotonic() < settle:
@@ -299,8 +302,10 @@ def _settle(executor, pids: dict[int, str]) -> tuple:
 
 
 def _drain(executor, probe: Probe, restamper: Restamper) -> None:
-    """Spin until the tracker finished the last frame (it reports every frame it heard of, in order or
-    skipped), or no output came for DRAIN_IDLE s (frames it never heard of), at most DRAIN_TIMEOUT s.
+    """Spin until the tracker finished the last frame, or no output came for DRAIN_IDLE s.
+
+    The tracker reports every frame it heard of, in order or skipped; a quiet DRAIN_IDLE s means
+    frames it never heard of. At most DRAIN_TIMEOUT s.
     """
     last = max(restamper.frames.values(), key=lambda t: t.index, default=None)
     deadline = time.monotonic() + DRAIN_TIMEOUT

@@ -190,7 +190,10 @@ def _process_figures(
 def _node_figures(
     diagnostics: dict[str, dict], messages: dict[str, int], pids: dict[int, str]
 ) -> dict:
-    """Each node's counters from its last /diagnostics (whole run, warm-up included) and drops by reason."""
+    """Each node's counters from its last /diagnostics and its drops by reason.
+
+    The counters cover the whole run, warm-up included.
+    """
     nodes = {}
     for label in pids.values():
         if label not in diagnostics:

@@ -7,10 +7,9 @@ import struct
 import threading
 import time
 
-ASSIGNMENT_TOPIC = '/memo/camera_assignment'
-
 from memo_ros.ros.body_messages import processed_outcome
 
+ASSIGNMENT_TOPIC = '/memo/camera_assignment'
 JOINT_STATES_TOPIC = '/memo/joint_states'
 
 

@@ -1,4 +1,4 @@
-"""The graph benchmark's processes: start and stop the launcher, CPU and resident memory per node."""
+"""The graph benchmark's processes: start and stop the launcher; CPU and RSS per node."""
 
 from __future__ import annotations
 
@@ -39,7 +39,10 @@ def node_label(command: list[str]) -> str:
 
 
 def start_graph(studio_file: Path, env: dict, log: Path) -> subprocess.Popen:
-    """``memo-ros launch STUDIO`` (best-effort images, as for live cameras), its output to ``log``."""
+    """Start ``memo-ros launch STUDIO``, its output to ``log``.
+
+    Images are best-effort, as for live cameras.
+    """
     with open(log, 'w') as out:
         return subprocess.Popen(
             [sys.executable, '-m', 'memo_ros.tools.cli', 'launch', str(studio_file)],

@@ -72,7 +72,7 @@ def _time_sequence(scenario_name: str, settings: SelectionSettings, repeat: int)
 
 
 def run_selector_benchmark(repeat: int = 3) -> dict:
-    """Time the selection per frame on simulated studio sequences at 640x480 with the default settings."""
+    """Time the selection per frame on simulated studio sequences at 640x480, default settings."""
     if repeat < 1:
         raise ValueError('repeat must be at least 1')
     settings = SelectionSettings()
