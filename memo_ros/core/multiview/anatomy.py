@@ -88,13 +88,13 @@ class Anatomy:
         self.limbs = {pair: _limb_exchange(names, joints) for pair, joints in LIMB_JOINTS.items()}
 
     def difference(self, q: np.ndarray, pair: str) -> np.ndarray:
-        """Left limb's coordinates less the mirror of the right one's (zero for a symmetric pose)."""
+        """Return the left limb's coordinates less the mirror of the right's (0 if symmetric)."""
         left, right, sign = self.limbs[pair]
         q = np.asarray(q, float)
         return q[left] - sign * q[right]
 
     def exchange(self, q: np.ndarray, pair: str) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``q`` with the pair's left and right limbs exchanged, and the map of its tangents.
+        """Return ``q`` with the pair's left and right limbs exchanged, and its tangent map.
 
         Each limb takes the other's angles mirrored in the sagittal plane, so
         the raised leg of a kick becomes the other leg raised the same way;
@@ -184,7 +184,7 @@ class Anatomy:
 
 
 def _limb_exchange(names: Sequence[str], joints: Sequence[str]) -> tuple:
-    """Indices of a pair's left and right coordinates, and the mirror's sign of each."""
+    """Return the indices of a pair's left and right coordinates and the mirror's signs."""
     left = [k for k, n in enumerate(names) if n.rsplit('_', 2)[0] in joints and '_l_' in n]
     right = [names.index(n.replace('_l_', '_r_')) for n in (names[k] for k in left)]
     sign = np.array([MIRROR_SIGN[names[k].rsplit('_', 1)[1]] for k in left])
