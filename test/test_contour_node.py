@@ -190,11 +190,15 @@ def _background_info(sec: int) -> CameraInfo:
     return msg
 
 
-def _run_background_node(ros_env, params, frames, first_sec: int) -> tuple[dict, list]:
+def _run_background_node(
+    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None
+) -> tuple[dict, list]:
     """Start a 64x48 contour_node, feed it frames (None: a lost image) with a camera_info each.
 
-    Stop it; return its /diagnostics values and its contour clouds.
+    Stamped ``first_sec`` + k, or ``stamps`` (seconds).  Stop it; return its /diagnostics values
+    and its contour clouds.
     """
+    stamps = stamps or [first_sec + k for k in range(len(frames))]
     process = _start_node(ros_env, 'cam_bg', *params)
     values: dict[str, str] = {}
     contours = []
@@ -216,9 +220,9 @@ def _run_background_node(ros_env, params, frames, first_sec: int) -> tuple[dict,
                 assert time.monotonic() < deadline, 'contour_node did not appear'
             time.sleep(1.0)
             for k, pixels in enumerate(frames):
-                info_pub.publish(_background_info(first_sec + k))
+                info_pub.publish(_background_info(stamps[k]))
                 if pixels is not None:
-                    image_pub.publish(_background_frame(pixels, first_sec + k))
+                    image_pub.publish(_background_frame(pixels, stamps[k]))
                 end = time.monotonic() + 0.15
                 while time.monotonic() < end:
                     executor.spin_once(timeout_sec=0.05)
@@ -287,6 +291,29 @@ def test_a_background_with_the_person_in_it_is_neither_saved_nor_loaded(ros_env,
     assert int(values['background_refused']) == 1, values
     assert int(values['warming_up']) == 3, values
     assert background_file.with_name(background_file.name + '.yaml').is_file()  # relearnt, saved
+
+
+def test_one_image_stamped_in_the_past_is_counted_and_changes_no_contour(ros_env):
+    params = ('background_frames:=3', 'min_region_area:=20')
+    empty, _ = _scene()
+    walking = []
+    for k in range(5):  # the person moves, so every frame's contour is its own
+        frame = empty.copy()
+        frame[10:40, 12 + 4 * k : 26 + 4 * k] = 200
+        walking.append(frame)
+    plain = [empty, empty, empty, *walking]
+    _, expected = _run_background_node(ros_env, params, plain, 1)
+    # the same, with an image of the person stamped 4 s back arriving after the second person frame
+    stale = [empty, empty, empty, walking[0], walking[1], walking[3], *walking[2:]]
+    stamps = [1, 2, 3, 4, 5, 1, 6, 7, 8]
+    values, seen = _run_background_node(ros_env, params, stale, 1, stamps)
+    assert int(values['dropped.out_of_order']) == 1 and 'time_jump_resets' not in values, values
+    assert int(values['processed']) == len(plain), values
+    clouds = [pointcloud_to_array(c) for c in seen]
+    wanted = [pointcloud_to_array(c) for c in expected]
+    assert len(clouds) == len(wanted) == len(plain)  # one cloud per processed image
+    for got, want in zip(clouds[-len(walking) :], wanted[-len(walking) :]):
+        assert len(got) > 20 and np.array_equal(got, want)
 
 
 def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_env, tmp_path):
