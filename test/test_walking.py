@@ -19,6 +19,11 @@ from memo_ros.core.simulation.imaging import (
 )
 from memo_ros.core.simulation.scenarios import line_walk, make_scenario, street_camera
 from memo_ros.core.vision.contours import ContourPipeline
+from memo_ros.core.walking.ground import (
+    outline_midpoints,
+    position_on_ground,
+    rectangle_offsets,
+)
 from memo_ros.core.walking.initialisation import two_lines
 from memo_ros.core.walking.kalman import KalmanParams, WalkingKalman, transition
 from memo_ros.core.walking.model_contours import visible_contours
@@ -80,6 +85,42 @@ def test_eq_2_6_shift_the_midpoints_so_the_last_three_rows_hold_exactly(camera):
 def test_eq_2_6_refuses_a_flat_box(camera):
     with pytest.raises(ValueError, match='no height'):
         position_from_box(camera, [320.0, 300.0], [320.0, 300.0], 1.75)
+
+
+# ------------------------------------------------------- depth from the ground
+def test_ground_gives_the_sole_and_the_height_of_an_exact_box(camera):
+    for sole, height in (([0.7, 0.4, 0.0], 1.60), ([-1.2, -0.3, 0.0], 1.88)):
+        sole = np.array(sole)
+        bottom, top = camera.project(np.array([sole, sole + [0.0, 0.0, height]]))
+        found = position_on_ground(camera, bottom, top)
+        assert np.allclose(found.sole, sole, atol=1e-6) and found.height == pytest.approx(height)
+        # a rectangle half a pixel off in its bottom row: about 4 cm of depth at 11 m, no height
+        # needed
+        found = position_on_ground(camera, bottom + [0.0, 0.5], top)
+        assert 0.01 < np.linalg.norm(found.sole - sole) < 0.06
+        assert found.height == pytest.approx(height, abs=0.01)
+    on_a_step = position_on_ground(camera, bottom, top, ground_z=0.2)  # another ground plane
+    assert on_a_step.sole[2] == 0.2 and on_a_step.sole[1] < sole[1] - 1.0
+
+
+def test_ground_refuses_a_bottom_above_the_horizon(camera):
+    horizon = camera.project(np.array([[0.0, 1e6, camera.centre[2]]]))[0]
+    with pytest.raises(ValueError, match='behind the camera|parallel'):
+        position_on_ground(camera, horizon - [0.0, 5.0], horizon - [0.0, 200.0])
+
+
+def test_model_outline_rectangle_is_the_rendered_one_and_lies_below_the_pelvis(body, camera):
+    model = WalkerModel(body, camera)
+    for pose in (0.0, 0.25, 0.5, 0.75):
+        rotations, origins = body.forward_kinematics(model.coordinates(0.3, 0.0, 0.0, pose))
+        bottom, top = outline_midpoints(camera, body, rotations, origins)
+        label = render(camera, rotations, origins, body.semi_axes, body.lengths).label
+        rows = np.flatnonzero(label.any(axis=1))
+        assert abs(bottom[1] - (rows[-1] + 0.5)) < 1.0 and abs(top[1] - (rows[0] - 0.5)) < 1.0
+        offsets = rectangle_offsets(camera, body, rotations, origins)
+        # the rectangle's sole is a foot's rim, within a foot's length and the hips' width
+        assert np.linalg.norm(offsets.pelvis_from_sole[:2]) < 0.2
+        assert offsets.rectangle_height == pytest.approx(body.standing_height(), abs=0.05)
 
 
 # -------------------------------------------------------- model contours
