@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.evaluation.metrics import phase_error
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
 from memo_ros.core.geometry.render import render
 from memo_ros.core.simulation.imaging import (
     ImagingOptions,
@@ -38,7 +38,7 @@ from memo_ros.core.walking.similarity import (
     candidate_edges,
     similarity,
 )
-from memo_ros.core.walking.tracker import TRACKING, WalkingTracker
+from memo_ros.core.walking.tracker import TRACKING, WalkerSettings, WalkingTracker
 from memo_ros.nodes.contour_node import pipeline_settings
 
 
@@ -121,6 +121,46 @@ def test_model_outline_rectangle_is_the_rendered_one_and_lies_below_the_pelvis(b
         # the rectangle's sole is a foot's rim, within a foot's length and the hips' width
         assert np.linalg.norm(offsets.pelvis_from_sole[:2]) < 0.2
         assert offsets.rectangle_height == pytest.approx(body.standing_height(), abs=0.05)
+
+
+def _scaled_body(body: Body, height: float) -> Body:
+    """Return the body scaled uniformly to the standing height ``height`` (a shorter or taller one)."""
+    s = height / body.standing_height()
+    data = body.to_dict()
+    for part in data['parts'].values():
+        part['length'] *= s
+        part['semi_axes'] = [s * a for a in part['semi_axes']]
+    data['joints'] = {j: [s * v for v in offset] for j, offset in data['joints'].items()}
+    return Body.from_dict(data)
+
+
+@pytest.mark.parametrize('height', [1.60, 1.88])
+def test_ground_gives_the_depth_and_height_of_a_person_it_was_not_told(body, camera, height):
+    settings = pipeline_settings(make_scenario('street-walk', body).contour_parameters)
+    background, frames, _ = _street_frames(_scaled_body(body, height), camera, 5, 14)
+    pipeline = ContourPipeline(settings)
+    pipeline.set_background(background)
+    seen = []
+    for grey in frames:
+        out = pipeline.process(grey)
+        x, y, w, h = out.box
+        seen.append((np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]]), out.edges))
+    depth, measured = {}, None
+    for depth_from in ('ground', 'height'):  # the walker's model is the default 1.75 m body
+        tracker = WalkingTracker(body, camera, WalkerSettings(depth_from=depth_from))
+        for k, (corners, edges) in enumerate(seen):
+            result = tracker.step(1_000_000_000 + k * 40_000_000, corners, edges)
+        assert tracker.state == TRACKING
+        depth[depth_from] = result.estimate[4]  # the path is at depth 0
+        measured = measured or tracker.body_height
+    distance = float(np.hypot(*camera.centre[:2]))  # 11 m
+    print(
+        f'{height} m person, 1.75 m model: depth error from the ground {depth["ground"]:+.3f} m, '
+        f'from the assumed height {depth["height"]:+.3f} m; height measured {measured:.3f} m'
+    )
+    assert abs(depth['ground']) <= 0.005 * distance, depth  # half the 1 % target
+    assert abs(depth['height']) > 0.03 * distance, depth  # the assumed height is wrong
+    assert measured == pytest.approx(height, abs=0.02)
 
 
 # -------------------------------------------------------- model contours
