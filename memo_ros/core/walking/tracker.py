@@ -9,8 +9,7 @@ and the edge lines.  Images are numbered from the first rectangle by their stamp
 assumed H) and a grid search over the whole cycle and X, Y around it gives a single estimate; at
 the end the two-lines rule and linear regression give the starting state.  From the ground, each
 image's depth is its sole plus the offset of the model's own rectangle posed on the chosen line,
-and
-the person's height is measured (the median over the images).  Tracking: the Kalman
+and the person's height is measured (the median over the images).  Tracking: the Kalman
 prediction (eq. 14, 15) centres a grid search whose half-widths are ``window_sigmas`` standard
 deviations of the predicted covariance (at least one grid step, at most the paper's intervals), and
 the best grid point is the measurement (eq. 16-18).  The rectangle is not needed while tracking
