@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from memo_ros.core.geometry.body import Body
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.walking.position import (
     UP,
@@ -43,7 +44,9 @@ class GroundPosition:
     top_px: np.ndarray  # x_o after the shift (2,), ideal pixels
 
 
-def position_on_ground(camera: Camera, bottom_px, top_px, ground_z: float = 0.0) -> GroundPosition:
+def position_on_ground(
+    camera: Camera, bottom_px: np.ndarray, top_px: np.ndarray, ground_z: float = 0.0
+) -> GroundPosition:
     """Sole on the ground z = ``ground_z`` and height H from the rectangle's midpoints (pixels).
 
     ValueError when the bottom ray does not reach the ground in front of the camera.
@@ -71,7 +74,7 @@ def position_on_ground(camera: Camera, bottom_px, top_px, ground_z: float = 0.0)
 
 
 def outline_midpoints(
-    camera: Camera, body, rotations: np.ndarray, origins: np.ndarray, samples: int = 72
+    camera: Camera, body: Body, rotations: np.ndarray, origins: np.ndarray, samples: int = 72
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bottom and top midpoints (pixels) of the rectangle enclosing the posed model's outline.
 
@@ -102,7 +105,7 @@ class RectangleOffsets:
 
 
 def rectangle_offsets(
-    camera: Camera, body, rotations: np.ndarray, origins: np.ndarray, ground_z: float = 0.0
+    camera: Camera, body: Body, rotations: np.ndarray, origins: np.ndarray, ground_z: float = 0.0
 ) -> RectangleOffsets:
     """Solve the posed model's own rectangle on the ground: where its sole and height come out."""
     found = position_on_ground(
