@@ -124,7 +124,7 @@ def test_model_outline_rectangle_is_the_rendered_one_and_lies_below_the_pelvis(b
 
 
 def _scaled_body(body: Body, height: float) -> Body:
-    """Return the body scaled uniformly to the standing height ``height`` (a shorter or taller one)."""
+    """Return the body scaled uniformly to the standing height ``height``: another person."""
     s = height / body.standing_height()
     data = body.to_dict()
     for part in data['parts'].values():
