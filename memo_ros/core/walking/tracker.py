@@ -156,8 +156,8 @@ class WalkingTracker:
         bottom, top = box_midpoints(corners)
         try:
             if s.depth_from == 'ground':  # eq. 3-5 with the sole on the ground: H is measured
-                found = position_on_ground(self.model.camera, bottom, top, s.ground_z)
-                sole, rect_height = found.sole, found.height
+                ground = position_on_ground(self.model.camera, bottom, top, s.ground_z)
+                sole, rect_height = ground.sole, ground.height
             else:  # eq. 2-6 with the assumed H
                 sole = position_from_box(self.model.camera, bottom, top, self.height).sole
                 rect_height = 0.0
