@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 
+from memo_ros.core.formats.studio import Studio
 from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.tools.evaluate import (
@@ -163,15 +164,31 @@ def test_walker_tracks_the_whole_street_walk(street_run):
             for s in errors.stamps_ns[after]
         ]
     )
+    depth_err = np.array(
+        [
+            estimate.joints[s]['root_ty'] - truth.joints[s]['root_ty']
+            for s in errors.stamps_ns[after]
+        ]
+    )
+    camera = Studio.load(sim.studio).cameras[0]
+    distance = np.array(
+        [abs(truth.joints[s]['root_ty'] - camera.centre[1]) for s in errors.stamps_ns[after]]
+    )  # the camera's distance from the path, 11 m
+    mpjpe = errors.mpjpe_mm[after]
     figures = (
         f'{after.sum()} frames: phase median {np.median(phase):.4f} max {phase.max():.4f}, '
         f'X RMSE {100 * np.sqrt(np.mean(x_err**2)):.2f} cm, Y RMSE '
-        f'{100 * np.sqrt(np.mean(y_err**2)):.2f} cm'
+        f'{100 * np.sqrt(np.mean(y_err**2)):.2f} cm, depth error {100 * depth_err.mean():+.2f} '
+        f'cm ({100 * np.abs(depth_err / distance).max():.2f} % of the distance), MPJPE mean '
+        f'{mpjpe.mean():.1f} max {mpjpe.max():.1f} mm'
     )
     print(figures)
     assert np.median(phase) <= 0.02 and phase.max() <= 0.1, figures
     assert np.sqrt(np.mean(x_err**2)) <= 0.03, figures
     assert np.sqrt(np.mean(y_err**2)) <= 0.02, figures
+    # the depth from the ground plane, not from an assumed height (issue 16)
+    assert np.all(np.abs(depth_err) <= 0.01 * distance), figures
+    assert mpjpe.mean() <= 30.0, figures
 
 
 def test_walker_outputs_share_the_frame_stamps_and_frame(street_run):
@@ -206,6 +223,9 @@ def test_walker_counts_every_frame_in_diagnostics(street_run):
     assert int(values.get('started', 0)) == 1, values
     assert int(values['tracked']) == frames - warm_up - INIT_LAST, values
     assert values['state'] == 'tracking'
+    # the person's height, measured from the ground plane (depth_from: ground), not assumed
+    height = Studio.load(sim.studio).body.standing_height()
+    assert abs(float(values['body_height']) - height) <= 0.02, values
 
 
 def test_kalman_estimates_are_smoother_than_the_measurements(street_run):

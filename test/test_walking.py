@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.evaluation.metrics import phase_error
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
 from memo_ros.core.geometry.render import render
 from memo_ros.core.simulation.imaging import (
     ImagingOptions,
@@ -19,6 +19,11 @@ from memo_ros.core.simulation.imaging import (
 )
 from memo_ros.core.simulation.scenarios import line_walk, make_scenario, street_camera
 from memo_ros.core.vision.contours import ContourPipeline
+from memo_ros.core.walking.ground import (
+    outline_midpoints,
+    position_on_ground,
+    rectangle_offsets,
+)
 from memo_ros.core.walking.initialisation import two_lines
 from memo_ros.core.walking.kalman import KalmanParams, WalkingKalman, transition
 from memo_ros.core.walking.model_contours import visible_contours
@@ -33,7 +38,7 @@ from memo_ros.core.walking.similarity import (
     candidate_edges,
     similarity,
 )
-from memo_ros.core.walking.tracker import TRACKING, WalkingTracker
+from memo_ros.core.walking.tracker import TRACKING, WalkerSettings, WalkingTracker
 from memo_ros.nodes.contour_node import pipeline_settings
 
 
@@ -80,6 +85,82 @@ def test_eq_2_6_shift_the_midpoints_so_the_last_three_rows_hold_exactly(camera):
 def test_eq_2_6_refuses_a_flat_box(camera):
     with pytest.raises(ValueError, match='no height'):
         position_from_box(camera, [320.0, 300.0], [320.0, 300.0], 1.75)
+
+
+# ------------------------------------------------------- depth from the ground
+def test_ground_gives_the_sole_and_the_height_of_an_exact_box(camera):
+    for sole, height in (([0.7, 0.4, 0.0], 1.60), ([-1.2, -0.3, 0.0], 1.88)):
+        sole = np.array(sole)
+        bottom, top = camera.project(np.array([sole, sole + [0.0, 0.0, height]]))
+        found = position_on_ground(camera, bottom, top)
+        assert np.allclose(found.sole, sole, atol=1e-6) and found.height == pytest.approx(height)
+        # a rectangle half a pixel off in its bottom row: about 4 cm of depth at 11 m, no height
+        # needed
+        found = position_on_ground(camera, bottom + [0.0, 0.5], top)
+        assert 0.01 < np.linalg.norm(found.sole - sole) < 0.06
+        assert found.height == pytest.approx(height, abs=0.01)
+    on_a_step = position_on_ground(camera, bottom, top, ground_z=0.2)  # another ground plane
+    assert on_a_step.sole[2] == 0.2 and on_a_step.sole[1] < sole[1] - 1.0
+
+
+def test_ground_refuses_a_bottom_above_the_horizon(camera):
+    horizon = camera.project(np.array([[0.0, 1e6, camera.centre[2]]]))[0]
+    with pytest.raises(ValueError, match='behind the camera|parallel'):
+        position_on_ground(camera, horizon - [0.0, 5.0], horizon - [0.0, 200.0])
+
+
+def test_model_outline_rectangle_is_the_rendered_one_and_lies_below_the_pelvis(body, camera):
+    model = WalkerModel(body, camera)
+    for pose in (0.0, 0.25, 0.5, 0.75):
+        rotations, origins = body.forward_kinematics(model.coordinates(0.3, 0.0, 0.0, pose))
+        bottom, top = outline_midpoints(camera, body, rotations, origins)
+        label = render(camera, rotations, origins, body.semi_axes, body.lengths).label
+        rows = np.flatnonzero(label.any(axis=1))
+        assert abs(bottom[1] - (rows[-1] + 0.5)) < 1.0 and abs(top[1] - (rows[0] - 0.5)) < 1.0
+        offsets = rectangle_offsets(camera, body, rotations, origins)
+        # the rectangle's sole is a foot's rim, within a foot's length and the hips' width
+        assert np.linalg.norm(offsets.pelvis_from_sole[:2]) < 0.2
+        assert offsets.rectangle_height == pytest.approx(body.standing_height(), abs=0.05)
+
+
+def _scaled_body(body: Body, height: float) -> Body:
+    """Return the body scaled uniformly to the standing height ``height``: another person."""
+    s = height / body.standing_height()
+    data = body.to_dict()
+    for part in data['parts'].values():
+        part['length'] *= s
+        part['semi_axes'] = [s * a for a in part['semi_axes']]
+    data['joints'] = {j: [s * v for v in offset] for j, offset in data['joints'].items()}
+    return Body.from_dict(data)
+
+
+@pytest.mark.parametrize('height', [1.60, 1.88])
+def test_ground_gives_the_depth_and_height_of_a_person_it_was_not_told(body, camera, height):
+    settings = pipeline_settings(make_scenario('street-walk', body).contour_parameters)
+    background, frames, _ = _street_frames(_scaled_body(body, height), camera, 5, 14)
+    pipeline = ContourPipeline(settings)
+    pipeline.set_background(background)
+    seen = []
+    for grey in frames:
+        out = pipeline.process(grey)
+        x, y, w, h = out.box
+        seen.append((np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]]), out.edges))
+    depth, measured = {}, None
+    for depth_from in ('ground', 'height'):  # the walker's model is the default 1.75 m body
+        tracker = WalkingTracker(body, camera, WalkerSettings(depth_from=depth_from))
+        for k, (corners, edges) in enumerate(seen):
+            result = tracker.step(1_000_000_000 + k * 40_000_000, corners, edges)
+        assert tracker.state == TRACKING
+        depth[depth_from] = result.estimate[4]  # the path is at depth 0
+        measured = measured or tracker.body_height
+    distance = float(np.hypot(*camera.centre[:2]))  # 11 m
+    print(
+        f'{height} m person, 1.75 m model: depth error from the ground {depth["ground"]:+.3f} m, '
+        f'from the assumed height {depth["height"]:+.3f} m; height measured {measured:.3f} m'
+    )
+    assert abs(depth['ground']) <= 0.005 * distance, depth  # half the 1 % target
+    assert abs(depth['height']) > 0.03 * distance, depth  # the assumed height is wrong
+    assert measured == pytest.approx(height, abs=0.02)
 
 
 # -------------------------------------------------------- model contours

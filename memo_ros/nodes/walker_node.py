@@ -28,7 +28,7 @@ from memo_ros.core.geometry.rotations import rot_z
 from memo_ros.core.vision.edges import EDGE_DTYPE
 from memo_ros.core.walking.kalman import KalmanParams
 from memo_ros.core.walking.similarity import SimilarityParams
-from memo_ros.core.walking.tracker import TRACKING, WalkerSettings, WalkingTracker
+from memo_ros.core.walking.tracker import DEPTH_FROM, TRACKING, WalkerSettings, WalkingTracker
 from memo_ros.ros.body_messages import (
     PROCESSED_TOPIC,
     joint_state_message,
@@ -56,10 +56,18 @@ PARAMS: tuple[Param, ...] = (
         read_only=True,
     ),
     Param(
+        'depth_from',
+        'ground',
+        "where the walker's depth comes from: ground = the rectangle's sole on the ground plane "
+        "(world z = 0), the person's height measured with it; height = eq. 2-6 with "
+        'person_height',
+        choices=DEPTH_FROM,
+    ),
+    Param(
         'person_height',
         0.0,
-        'assumed height H of the person for the rectangle (eq. 2-6), m; 0 = the '
-        "walking model's mean head-top height",
+        'depth_from height: assumed height H of the person for the rectangle (eq. 2-6), m; 0 = '
+        "the walking model's mean head-top height",
         0.0,
         3.0,
     ),
@@ -183,6 +191,7 @@ def walker_settings(params: dict, frame_rate: float) -> WalkerSettings:
         gradient_weight=p['gradient_weight'],
     )
     return WalkerSettings(
+        depth_from=p['depth_from'],
         person_height=p['person_height'],
         frame_rate=frame_rate,
         init_first=p['init_first'],
@@ -298,15 +307,21 @@ class WalkerNode(Node):
             JointState, '/memo/walker/measurement', OUTPUT_DEPTH
         )
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, OUTPUT_DEPTH)
+        self.get_logger().info(
+            f'walking tracker on {name}: depth {self._depth_source()}, '
+            f'initialization images {self.settings.init_first}-{self.settings.init_last}'
+        )
+
+    def _depth_source(self) -> str:
+        """Say where the depth comes from, for the log."""
+        if self.settings.depth_from == 'ground':
+            return "from the ground plane (z = 0), the person's height measured"
         height = (
             f'{self.settings.person_height:.3f} m'
             if self.settings.person_height
             else "the walking model's mean head-top height"
         )
-        self.get_logger().info(
-            f'walking tracker on {name}: H = {height}, '
-            f'initialization images {self.settings.init_first}-{self.settings.init_last}'
-        )
+        return f'from the assumed height H = {height} (eq. 2-6)'
 
     # ------------------------------------------------------------ inputs
     def _on_parameters_set(self) -> None:
@@ -453,9 +468,15 @@ class WalkerNode(Node):
             self.health.set(
                 'init_line', f'{c.rule}: {c.counts[0]} on the chosen line, {c.counts[1]} displaced'
             )
+            body = ''
+            if self.tracker.body_height is not None:
+                self.health.set('body_height', f'{self.tracker.body_height:.3f}')
+                body = f", the person's height {self.tracker.body_height:.3f} m"
+            self.health.set('depth', f'{result.estimate[4]:.3f}')
             self.get_logger().info(
                 f'initialized: pose line chosen by {c.rule} ({c.counts[0]} estimates on it, '
-                f'{c.counts[1]} half a cycle away)'
+                f'{c.counts[1]} half a cycle away); pelvis at world y = '
+                f'{result.estimate[4]:.3f} m ({self.settings.depth_from}){body}'
             )
         self.health.ok()
 

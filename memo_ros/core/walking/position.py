@@ -90,6 +90,21 @@ def _project_onto_line(line: np.ndarray, point: np.ndarray) -> np.ndarray:
     return point - distance * np.array([a, b])
 
 
+def shift_to_vertical(
+    T: np.ndarray, bottom: np.ndarray, top: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move both midpoints onto the image of the vertical through their centre: eq. 5 then holds.
+
+    Rohr's shift: the line through the centre and the vertical's vanishing point T UP.
+    """
+    vanishing = T[:, :3] @ UP
+    centre = np.append((bottom + top) / 2.0, 1.0)
+    line = np.cross(centre, vanishing)
+    if np.hypot(line[0], line[1]) < 1e-12:
+        raise ValueError('the vertical through the rectangle is degenerate in this camera')
+    return _project_onto_line(line, bottom), _project_onto_line(line, top)
+
+
 def position_from_box(camera: Camera, bottom_px, top_px, height: float) -> BoxPosition:
     """Solve eq. 2-6 for the sole X_u from the rectangle's bottom and top midpoints.
 
@@ -101,13 +116,8 @@ def position_from_box(camera: Camera, bottom_px, top_px, height: float) -> BoxPo
     bottom, top = ideal_pixels(camera, np.array([bottom_px, top_px], float))
     if np.allclose(bottom, top):
         raise ValueError('the rectangle has no height: bottom and top midpoints coincide')
-    # shift both midpoints onto the line through the centre and the vertical's vanishing point
+    bottom, top = shift_to_vertical(T, bottom, top)
     vanishing = T[:, :3] @ UP
-    centre = np.append((bottom + top) / 2.0, 1.0)
-    line = np.cross(centre, vanishing)
-    if np.hypot(line[0], line[1]) < 1e-12:
-        raise ValueError('the vertical through the rectangle is degenerate in this camera')
-    bottom, top = _project_onto_line(line, bottom), _project_onto_line(line, top)
     # eq. 5 (the last three rows of eq. 6): h_u x_u - h_o x_o + T H = 0, now consistent
     m = height * vanishing
     A = np.column_stack([np.append(bottom, 1.0), -np.append(top, 1.0)])

@@ -5,8 +5,11 @@ Initialization, then incremental Kalman estimation.
 Feed :meth:`WalkingTracker.step` every frame's stamp, the person's enclosing rectangle (or None)
 and the edge lines.  Images are numbered from the first rectangle by their stamps.  Initialization
 (images ``init_first``.. ``init_last``, Rohr's 2-14): per image the rectangle gives a 3D position
-(eq. 2-6) and a grid search over the whole cycle and X, Y around it gives a single estimate; at the
-end the two-lines rule and linear regression give the starting state.  Tracking: the Kalman
+(``depth_from='ground'``: its sole on the ground plane, ground.py; ``'height'``: eq. 2-6 with the
+assumed H) and a grid search over the whole cycle and X, Y around it gives a single estimate; at
+the end the two-lines rule and linear regression give the starting state.  From the ground, each
+image's depth is its sole plus the offset of the model's own rectangle posed on the chosen line,
+and the person's height is measured (the median over the images).  Tracking: the Kalman
 prediction (eq. 14, 15) centres a grid search whose half-widths are ``window_sigmas`` standard
 deviations of the predicted covariance (at least one grid step, at most the paper's intervals), and
 the best grid point is the measurement (eq. 16-18).  The rectangle is not needed while tracking
@@ -21,6 +24,7 @@ import numpy as np
 
 from memo_ros.core.geometry.body import Body
 from memo_ros.core.geometry.camera import Camera
+from memo_ros.core.walking.ground import position_on_ground, rectangle_offsets
 from memo_ros.core.walking.initialisation import (
     LineChoice,
     SingleEstimate,
@@ -34,12 +38,15 @@ from memo_ros.core.walking.search import SearchResult, WalkerModel, grid_offsets
 from memo_ros.core.walking.similarity import SimilarityParams, edge_table
 
 WAITING, INITIALIZING, TRACKING = 'waiting', 'initializing', 'tracking'
+DEPTH_FROM = ('ground', 'height')  # the sole on the known ground, or Rohr's assumed height H
 
 
 @dataclass(frozen=True)
 class WalkerSettings:
     """Everything the walker needs besides the body and the camera."""
 
+    depth_from: str = 'ground'  # 'ground': the sole on the ground plane; 'height': eq. 2-6 with H
+    ground_z: float = 0.0  # world z of the ground plane (DESIGN.md: 0)
     person_height: float = (
         0.0  # assumed H (m) for eq. 2-6; 0: the walking model's mean head-top height
     )
@@ -93,7 +100,13 @@ class WalkingTracker:
         self.model = WalkerModel(
             body, camera, self.settings.similarity, reuse_distance=self.settings.reuse_distance
         )
+        if self.settings.depth_from not in DEPTH_FROM:
+            raise ValueError(
+                f'depth_from must be one of {", ".join(DEPTH_FROM)}, '
+                f'not {self.settings.depth_from!r}'
+            )
         self.height = self.settings.person_height or self.model.head_top_height()
+        self.body_height: float | None = None  # the person's standing height, measured (ground)
         self.reset()
 
     def reset(self) -> None:
@@ -102,9 +115,10 @@ class WalkingTracker:
         self.first_stamp: int | None = None
         self.last_stamp: int | None = None
         self.pending: list[
-            tuple[int, float, np.ndarray, np.ndarray]
-        ] = []  # (stamp, image, sole, edges)
+            tuple[int, float, np.ndarray, np.ndarray, float]
+        ] = []  # (stamp, image, sole, edges, the rectangle's height H or 0)
         self.estimates: list[SingleEstimate] = []
+        self.soles: list[tuple[np.ndarray, float]] = []  # per estimate: sole, rectangle's H
         self.heading: float | None = None
         self.filter: WalkingKalman | None = None
         self.missed = 0
@@ -143,10 +157,15 @@ class WalkingTracker:
             return StepResult(stamp_ns, self.state, image, event='init_skipped')
         bottom, top = box_midpoints(corners)
         try:
-            sole = position_from_box(self.model.camera, bottom, top, self.height).sole  # eq. 2-6
+            if s.depth_from == 'ground':  # eq. 3-5 with the sole on the ground: H is measured
+                ground = position_on_ground(self.model.camera, bottom, top, s.ground_z)
+                sole, rect_height = ground.sole, ground.height
+            else:  # eq. 2-6 with the assumed H
+                sole = position_from_box(self.model.camera, bottom, top, self.height).sole
+                rect_height = 0.0
         except ValueError:  # a rectangle no standing person can make
             return StepResult(stamp_ns, self.state, image, event='bad_box')
-        self.pending.append((stamp_ns, image, sole, edges))
+        self.pending.append((stamp_ns, image, sole, edges, rect_height))
         result = StepResult(stamp_ns, self.state, image, box_position=sole, event='init_image')
         if self.heading is None:
             travel = self.pending[-1][2][0] - self.pending[0][2][0]
@@ -158,6 +177,7 @@ class WalkingTracker:
             number,
             position,
             frame_edges,
+            rect_height,
         ) in self.pending:  # whole-cycle search per image (§5.1)
             found = self.model.search(
                 frame_edges,
@@ -169,13 +189,15 @@ class WalkingTracker:
                 grid_offsets(s.init_half_y, s.step_y),
                 self.heading,
             )
+            depth = float(position[1])
+            if rect_height:  # provisional: the pose may yet turn out legs-swapped
+                depth = self._ground_depth(found.X, position, rect_height, found.pose)[0]
             self.estimates.append(
-                SingleEstimate(
-                    number, found.X, found.Y, float(position[1]), found.pose, found.similarity
-                )
+                SingleEstimate(number, found.X, found.Y, depth, found.pose, found.similarity)
             )
+            self.soles.append((position, rect_height))
             result.measurement = found
-            result.measurements.append((stamp, number, found, float(position[1])))
+            result.measurements.append((stamp, number, found, depth))
             result.evaluations += found.evaluations
             result.renderings += found.renderings
             result.seconds += found.seconds
@@ -192,12 +214,43 @@ class WalkingTracker:
             np.array([x.similarity for x in e]),
             self._slope_range(),
         )
+        if self.settings.depth_from == 'ground':
+            heights = []
+            for estimate, (sole, rect_height) in zip(e, self.soles):
+                pose = choice.phase0 + choice.slope * estimate.image  # on the chosen line
+                estimate.Z, height = self._ground_depth(estimate.X, sole, rect_height, pose)
+                heights.append(height)
+            self.body_height = float(np.median(heights))
         p0 = starting_state(e, image, choice)
         self.filter = WalkingKalman(p0, self.settings.kalman)
         self.state = TRACKING
         self.missed = 0
         result.state, result.choice, result.event = TRACKING, choice, 'started'
         result.estimate, result.covariance = self.filter.p.copy(), self.filter.P.copy()
+
+    def _ground_depth(
+        self, X: float, sole: np.ndarray, rect_height: float, pose: float
+    ) -> tuple[float, float]:
+        """Pelvis depth and standing height from a rectangle's sole on the ground and its H.
+
+        The model posed there has its own rectangle: its pelvis minus its sole is the offset from
+        the rectangle's sole (the near rim of the lower foot) to the pelvis, and the measured over
+        its rectangle's H scales its standing height to the person's.
+        """
+        s = self.settings
+        depth = float(sole[1])
+        for _ in range(2):  # the offset barely depends on the depth: one refinement
+            q = self.model.coordinates(X, s.ground_z, depth, pose, self.heading or 0.0)
+            model = rectangle_offsets(
+                self.model.camera,
+                self.model.body,
+                *self.model.body.forward_kinematics(q),
+                s.ground_z,
+            )
+            scale = rect_height / model.rectangle_height
+            offset = model.pelvis_from_sole[1] * scale  # the person: the model scaled
+            depth = float(sole[1] + offset)
+        return depth, model.standing_height * scale
 
     def _slope_range(self) -> tuple[float, float]:
         """Plausible pose per image: 0.25 to 2 cycles per second."""
