@@ -219,34 +219,41 @@ def dance_motion(body: Body, heading: float = 0.0) -> Trajectory:
     def trajectory(t: np.ndarray):
         s = np.asarray(t, float)
         q = np.repeat(base[None], len(s), 0)
-        arm_l, arm_r = _bump(s, 0.2, 1.1), _bump(s, 1.0, 1.1)  # overhead and down, overlapping
-        kick_r, kick_l = _bump(s, 0.7, 0.8), _bump(s, 1.6, 0.8)  # up in 0.4 s, down in 0.4 s
-        turn = _ramp(s, 2.2, 1.2)  # a full turn in 1.2 s
-        squat = _bump(s, 2.9, 1.0)
+        move = {name: _bump(s, start, width) for name, (start, width) in DANCE_MOVES.items()}
+        turn = _ramp(s, *DANCE_MOVES['turn'])  # a full turn in 1.2 s
+        step = _ramp(s, *DANCE_MOVES['step'])
         q[:, idx('shoulder_l_x')] = 0.05  # the arms clear of the torso (arm_motion)
         q[:, idx('shoulder_r_x')] = -0.05
-        q[:, idx('shoulder_l_y')] = 2.7 * arm_l  # forward and up to 155 degrees: overhead
-        q[:, idx('shoulder_r_y')] = 2.7 * arm_r
-        q[:, idx('elbow_l_y')] = 0.15 + 0.35 * arm_l  # elbows a little bent throughout
-        q[:, idx('elbow_r_y')] = 0.15 + 0.35 * arm_r
+        for side, arm in (('l', move['left arm overhead']), ('r', move['right arm overhead'])):
+            q[:, idx(f'shoulder_{side}_y')] = 2.7 * arm  # forward and up to 155 degrees: overhead
+            q[:, idx(f'elbow_{side}_y')] = 0.15 + 0.35 * arm  # elbows a little bent throughout
         # the squat: hips and ankles flex by a, the knees by 2a, so the shanks lean as far forwards
         # as the thighs back and the feet stay flat; the pelvis sinks by leg (1 - cos a), 0.1 m
-        a = 0.49 * squat
-        for side, kick in (('r', kick_r), ('l', kick_l)):
-            chamber = _bump(s, 0.7 if side == 'r' else 1.6, 0.5)  # the knee bends before the hip
+        a = 0.49 * move['squat']
+        for side, name in (('r', 'right kick'), ('l', 'left kick')):
+            kick = move[name]  # up in 0.4 s, down in 0.4 s
+            chamber = _bump(s, DANCE_MOVES[name][0], 0.5)  # the knee bends before the hip
             hip = 1.3 * kick
             knee = -1.1 * chamber - 0.3 * kick
             q[:, idx(f'hip_{side}_y')] = hip + a
             q[:, idx(f'knee_{side}_y')] = knee - 2.0 * a
             q[:, idx(f'ankle_{side}_y')] = a - (hip + knee)  # the foot level: no toe in the floor
         q[:, 2] = base[2] - leg * (1.0 - np.cos(a))
-        yaw = heading + 2.0 * np.pi * turn
-        q[:, 0] = 0.15 * _ramp(s, 1.8, 2.0)  # a small step forward-sideways during the turn
-        q[:, 1] = -0.1 * _ramp(s, 1.8, 2.0)
-        q[:, 5] = wrap_angle(yaw)
+        q[:, 0] = 0.15 * step  # a small step forward-sideways during the turn
+        q[:, 1] = -0.1 * step
+        q[:, 5] = wrap_angle(heading + 2.0 * np.pi * turn)
         return q, None
 
     return trajectory
+
+
+def dance_moves(start: float, end: float | None = None) -> list[str]:
+    """Return the studio-dance moves (:data:`DANCE_MOVES`) under way in [start, end] s.
+
+    To say what the subject was doing where a tracker failed.
+    """
+    end = start if end is None else end
+    return [name for name, (t0, width) in DANCE_MOVES.items() if t0 < end and start < t0 + width]
 
 
 def arc_walk(
@@ -379,6 +386,16 @@ def make_scenario(
 
 SCENARIOS = ('studio-arm', 'studio-walk', 'street-walk', 'studio-dance')
 DANCE_SECONDS = 4.0  # studio-dance's motion; a longer sequence ends standing still
+# studio-dance's timeline: each move's start and duration, s (arms and kicks rise in half of it)
+DANCE_MOVES: dict[str, tuple[float, float]] = {
+    'left arm overhead': (0.2, 1.1),
+    'right kick': (0.7, 0.8),
+    'right arm overhead': (1.0, 1.1),
+    'left kick': (1.6, 0.8),
+    'step': (1.8, 2.0),
+    'turn': (2.2, 1.2),
+    'squat': (2.9, 1.0),
+}
 RIGS = ('orthogonal', 'ring4')  # the studio scenarios' camera rigs
 # ring4: azimuths 80-95 degrees apart, at different distances and heights, as a rig might be put up
 # in a room: its optical axes meet at 80, 86, 92, 94, 145 and 165 degrees, none along a world axis
