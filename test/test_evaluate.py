@@ -13,9 +13,16 @@ import cv2
 import numpy as np
 import pytest
 
-from memo_ros.core.evaluation.metrics import phase_error
+from memo_ros.core.evaluation.metrics import (
+    facing_of_poses,
+    heading_error,
+    phase_error,
+    side_swaps,
+)
 from memo_ros.core.formats.studio import Studio
-from memo_ros.core.geometry.rotations import matrix_to_quat, rot_x
+from memo_ros.core.geometry.body import PART_NAMES, load_default_body, other_side
+from memo_ros.core.geometry.rotations import matrix_to_quat, rot_x, rot_z
+from memo_ros.core.multiview.anatomy import facing
 from memo_ros.core.simulation.imaging import ImagingOptions
 from memo_ros.ros.bagio import BagWriter, joint_state_msg, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
@@ -204,3 +211,62 @@ def test_bad_input_is_one_line_without_traceback(arm, tmp_path):
         assert done.returncode != 0
         assert 'Traceback' not in done.stderr
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_heading_error_and_side_swaps_are_found_in_the_frames_they_happen(tmp_path):
+    # 1.2 s of studio-dance: frames from 30 on are a second after the first
+    result = simulate(
+        'studio-dance',
+        tmp_path / 'truth',
+        frames=36,
+        width=80,
+        height=60,
+        empty_frames=0,
+        options=ImagingOptions(noise=0.0),
+    )
+    track = load_track(result.bag, TRUTH_TOPICS)
+    turned = {10: 40.0, 33: -25.0}  # frame -> the estimate's heading error, degrees
+    swapped = (5, 34)  # frames with the estimate's left and right parts exchanged
+    exchange = [PART_NAMES.index(other_side(p)) for p in PART_NAMES]
+    with BagWriter(tmp_path / 'estimate') as writer:
+        for k, stamp in enumerate(sorted(track.origins)):
+            origins, rotations = track.origins[stamp], track.rotations[stamp]
+            turn = rot_z(np.radians(turned.get(k, 0.0)))
+            origins = (origins - origins[0]) @ turn.T + origins[0]
+            rotations = turn @ rotations
+            if k in swapped:
+                origins, rotations = origins[exchange], rotations[exchange]
+            writer.write(
+                '/memo/body_poses',
+                stamp,
+                pose_array_msg(stamp, origins, matrix_to_quat(rotations)),
+            )
+    csv = tmp_path / 'frames.csv'
+    summary = evaluate_json(result.bag, tmp_path / 'estimate', '--per-frame', csv)
+    assert summary['heading_err_deg_max'] == pytest.approx(40.0, abs=1e-6)
+    assert summary['heading_err_deg_max_after_1s'] == pytest.approx(25.0, abs=1e-6)
+    assert summary['heading_err_deg_mean'] == pytest.approx(65.0 / 36, abs=1e-6)
+    assert summary['frames_side_swap'] == 2
+    assert summary['frames_side_swap_arms'] == summary['frames_side_swap_legs'] == 2
+    rows = [line.split(',') for line in csv.read_text().splitlines()]
+    header, rows = rows[0], rows[1:]
+    heading = np.array([float(r[header.index('heading_err_deg')]) for r in rows])
+    assert np.flatnonzero(np.abs(heading) > 1e-6).tolist() == [10, 33]
+    assert heading[33] == pytest.approx(-25.0, abs=1e-6)
+    for pair in ('arms', 'legs'):
+        flags = [int(r[header.index(f'side_swap_{pair}')]) for r in rows]
+        assert np.flatnonzero(flags).tolist() == list(swapped)
+    plain = evaluate_json(result.bag, result.bag)
+    assert plain['heading_err_deg_max'] == 0.0 and plain['frames_side_swap'] == 0
+
+
+def test_the_heading_of_part_poses_is_anatomy_facing():
+    body = load_default_body()
+    rng = np.random.default_rng(5)
+    q = body.neutral() + rng.normal(0.0, 1.0, (20, body.n_coordinates))
+    rotations, _ = body.forward_kinematics(q)
+    assert np.allclose(facing_of_poses(rotations), facing(body, q), atol=1e-12)
+    assert heading_error(rotations, rotations[::-1]) == pytest.approx(
+        np.degrees(np.angle(np.exp(1j * (facing(body, q[::-1]) - facing(body, q)))))
+    )
+    assert side_swaps(np.zeros((3, 14, 3)), np.zeros((3, 14, 3))).shape == (3, 2)

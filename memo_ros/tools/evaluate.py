@@ -23,10 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from memo_ros.core.evaluation.metrics import (
+    SWAP_PAIRS,
     FrameErrors,
+    heading_error,
     per_part_table,
     phase_error,
     pose_errors,
+    side_swaps,
     summarize,
 )
 from memo_ros.core.geometry.body import PART_NAMES, load_default_body
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f'{args.estimate} has no {ESTIMATE_TOPICS[0]} (nor truth) messages')
     errors = match_and_measure(truth, estimate, int(args.tolerance_ms * 1e6))
     height = body.standing_height()
-    summary = summarize(errors, height, len(truth.origins))
+    summary = summarize(errors, height, len(truth.origins), min(truth.origins))
     if args.per_frame:
         _write_per_frame(args.per_frame, errors)
     if args.plots:
@@ -313,7 +316,14 @@ def match_and_measure(truth: PoseTrack, estimate: PoseTrack, tolerance_ns: int) 
             [estimate.joints[e]['gait_phase'] for _, e in pairs],
             [truth.joints[t]['gait_phase'] for t, _ in pairs],
         )
-    return FrameErrors(np.array([t for t, _ in pairs]), joint_mm, axis_deg, phase)
+    return FrameErrors(
+        np.array([t for t, _ in pairs]),
+        joint_mm,
+        axis_deg,
+        phase,
+        heading_error(t_r, e_r),
+        side_swaps(t_o, e_o),
+    )
 
 
 def print_report(summary: dict, parts: list[dict]) -> None:
@@ -349,6 +359,10 @@ def _write_per_frame(path: Path, errors: FrameErrors) -> None:
     header = ['stamp_ns', 'mpjpe_mm', 'joint_mm_max', 'axis_deg_max'] + (
         ['phase_err'] if errors.phase is not None else []
     )
+    if errors.heading_deg is not None:
+        header.append('heading_err_deg')
+    if errors.side_swap is not None:
+        header += [f'side_swap_{pair}' for pair in SWAP_PAIRS]
     lines = [','.join(header)]
     for k, stamp in enumerate(errors.stamps_ns):
         row = [
@@ -359,6 +373,10 @@ def _write_per_frame(path: Path, errors: FrameErrors) -> None:
         ]
         if errors.phase is not None:
             row.append(f'{errors.phase[k]:.4f}')
+        if errors.heading_deg is not None:
+            row.append(f'{errors.heading_deg[k]:.3f}')
+        if errors.side_swap is not None:
+            row += [str(int(v)) for v in errors.side_swap[k]]
         lines.append(','.join(row))
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text('\n'.join(lines) + '\n', encoding='utf-8')

@@ -155,23 +155,25 @@ def _joint_curves(path: Path, truth, estimate, body, truth_stamps: np.ndarray) -
 
 
 def _error_curves(path: Path, errors: FrameErrors, truth_stamps: np.ndarray) -> Path:
-    """Per-frame MPJPE (mm), max axis error (deg) and, when walking.
+    """Per-frame MPJPE (mm), max axis error (deg), heading error (deg) and, when walking.
 
     Gait-phase error over the frame.
     """
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
-    panels = 3 if errors.phase is not None else 2
-    fig, axes = plt.subplots(panels, 1, figsize=(7.0, 2.0 * panels), sharex=True, squeeze=False)
     frames = _frame_numbers(np.asarray(errors.stamps_ns, np.int64), truth_stamps)
     have = errors.joint_mm.size > 0
     series = [
         ('MPJPE (mm)', errors.mpjpe_mm if have else np.zeros(0)),
         ('max axis error (deg)', errors.axis_deg.max(axis=1) if have else np.zeros(0)),
     ]
+    if errors.heading_deg is not None:
+        series.append(('heading error (deg)', np.abs(errors.heading_deg)))
     if errors.phase is not None:
         series.append(('gait-phase error (cycle)', np.asarray(errors.phase)))
+    panels = len(series)
+    fig, axes = plt.subplots(panels, 1, figsize=(7.0, 2.0 * panels), sharex=True, squeeze=False)
     for ax, (label, values) in zip(axes[:, 0], series):
         ax.plot(frames, values, '.-', color='tab:red', lw=1.0, ms=3)
         ax.set_ylabel(label, fontsize=8)

@@ -26,7 +26,7 @@ from memo_ros.core.simulation.imaging import (
     background_image,
     compose_frame,
 )
-from memo_ros.core.simulation.scenarios import SCENARIOS, Scenario, make_scenario
+from memo_ros.core.simulation.scenarios import RIGS, SCENARIOS, Scenario, make_scenario
 from memo_ros.ros.bagio import (
     BagWriter,
     camera_info_msg,
@@ -69,6 +69,17 @@ def finite_non_negative(text: str) -> float:
     value = float(text)
     if not math.isfinite(value) or value < 0:
         raise argparse.ArgumentTypeError(f'must be a finite number >= 0, not {text}')
+    return value
+
+
+def finite(text: str) -> float:
+    """Parse an argparse number that must be finite."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be a finite number, not {text}')
     return value
 
 
@@ -121,6 +132,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     parser.add_argument('--body', type=Path, help='body YAML (default: the shipped average adult)')
+    parser.add_argument(
+        '--heading',
+        type=finite,
+        metavar='DEG',
+        help='studio-dance: the heading the subject starts facing, degrees from the world x axis '
+        'towards y (default: random from --seed, printed)',
+    )
+    parser.add_argument(
+        '--rig',
+        help=f'studio scenarios: the cameras, one of {", ".join(RIGS)} (default orthogonal: '
+        'front, side, overhead; ring4: four cameras on an uneven ring)',
+    )
     parser.add_argument('--force', action='store_true', help='replace an existing output')
     parser.add_argument(
         '--progress', action='store_true', help='show progress even when not on a terminal'
@@ -143,6 +166,16 @@ def run(args: argparse.Namespace) -> int:
         raise CliError('--rate must be positive')
     if min(args.noise, args.blur, args.lighting_change) < 0:
         raise CliError('--noise, --blur and --lighting-change must not be negative')
+    if args.rig is not None and args.rig not in RIGS:
+        raise CliError(f'unknown rig {args.rig!r}; known: {", ".join(RIGS)}')
+    if args.rig is not None and not args.scenario.startswith('studio-'):
+        raise CliError(f'--rig is for the studio scenarios; {args.scenario} has its own camera')
+    if args.heading is not None and args.scenario != 'studio-dance':
+        raise CliError(f'--heading is for studio-dance; {args.scenario} takes none')
+    heading_deg, chosen = args.heading, 'given'
+    if args.scenario == 'studio-dance' and heading_deg is None:
+        heading_deg = float(np.random.default_rng(args.seed).uniform(0.0, 360.0))
+        chosen = f'random from --seed {args.seed}'
     body = Body.from_yaml(args.body) if args.body else load_default_body()
     out = args.out or Path('out') / args.scenario
     result = simulate(
@@ -160,8 +193,14 @@ def run(args: argparse.Namespace) -> int:
         progress=args.progress or sys.stderr.isatty(),
         empty_frames=args.empty_frames,
         initial_pose=not args.no_initial_pose,
+        heading=None if heading_deg is None else math.radians(heading_deg),
+        rig=args.rig,
     )
     print(f'scenario   {args.scenario}')
+    if heading_deg is not None:
+        print(f'heading    {heading_deg:.1f} deg ({chosen})')
+    if args.scenario.startswith('studio-'):
+        print(f'rig        {args.rig or "orthogonal"}')
     total = result.frames + result.empty_frames
     print(
         f'bag        {result.bag}  ({result.empty_frames} empty + {result.frames} frames '
@@ -196,16 +235,21 @@ def simulate(
     drop: dict[str, int] | None = None,
     empty_frames: int | None = None,
     initial_pose: bool = True,
+    heading: float | None = None,
+    rig: str | None = None,
 ) -> SimulationResult:
     """Simulate ``scenario_name`` into the bag ``out`` and the studio ``out.yaml``.
 
     ``drop`` maps a camera name to the frame index (counting empty frames) from which
     it stops publishing (a camera lost mid-run); ``empty_frames`` overrides the
-    scenario's number of empty-scene frames before the subject appears.
+    scenario's number of empty-scene frames before the subject appears; ``heading``
+    (rad) and ``rig`` go to :func:`make_scenario` (studio-dance's start, a studio's cameras).
     """
     body = body or load_default_body()
     options = options or ImagingOptions()
-    scenario = make_scenario(scenario_name, body, width, height, frames, frame_rate)
+    scenario = make_scenario(
+        scenario_name, body, width, height, frames, frame_rate, heading=heading, rig=rig
+    )
     if empty_frames is not None:
         if empty_frames < 0:
             raise ValueError('empty_frames must not be negative')

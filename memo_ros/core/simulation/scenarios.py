@@ -7,6 +7,12 @@
   a circular arc, so the heading turns and the legs occlude each other.
 - ``street-walk``: Rohr's scene: one camera about 11 m from a straight path
   parallel to its image plane, 25 frames/s, 1 s and 1.6 m per gait cycle.
+- ``studio-dance``: fast whole-body motion in 4 s: both arms raised overhead at
+  different times, a fast forward kick of each leg, a full turn about the
+  vertical in 1.2 s, a small squat and a small translation, from a chosen start
+  heading, on the orthogonal rig or a non-orthogonal ring of 4 cameras (``ring4``).
+
+The studio scenarios take ``rig`` (:data:`RIGS`); ``studio-dance`` also ``heading``.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from memo_ros.core.geometry.body import Body
 from memo_ros.core.geometry.camera import Camera
@@ -54,11 +61,14 @@ class Scenario:
     def velocities(self, times: np.ndarray, dt: float = 1e-4) -> np.ndarray:
         """Time derivative of the generalized coordinates.
 
-        Central differences of the smooth motion.
+        Central differences of the smooth motion; the angles' differences are wrapped into
+        (-pi, pi], so a yaw that jumps from pi to -pi (the same rotation) keeps the turn's rate.
         """
         after, _ = self.coordinates(times + dt / 2)
         before, _ = self.coordinates(times - dt / 2)
-        return (after - before) / dt
+        step = after - before
+        step[..., 3:] = np.pi - np.mod(np.pi - step[..., 3:], 2 * np.pi)
+        return step / dt
 
 
 def studio_cameras(width: int = 640, height: int = 480) -> list[Camera]:
@@ -91,6 +101,44 @@ def studio_cameras(width: int = 640, height: int = 480) -> list[Camera]:
             fx=f,
         ),
     ]
+
+
+def ring_cameras(
+    azimuths_deg: ArrayLike,
+    distances: ArrayLike,
+    heights: ArrayLike,
+    width: int = 640,
+    height: int = 480,
+    prefix: str = 'cam_ring',
+) -> list[Camera]:
+    """Cameras round the studio looking at (0, 0, 1) m: one per azimuth, distance and height.
+
+    A ring sees the subject from directions no orthogonal rig has; the focal length scales with
+    the width like the studio's (650 px at 640).
+    """
+    azimuths = np.radians(np.asarray(azimuths_deg, float))
+    out = np.broadcast_to(np.asarray(distances, float), azimuths.shape)
+    up = np.broadcast_to(np.asarray(heights, float), azimuths.shape)
+    eyes = np.stack([out * np.cos(azimuths), out * np.sin(azimuths), up], axis=-1)
+    f = 650.0 * width / 640.0
+    return [
+        Camera.look_at(f'{prefix}{k}', eye, (0.0, 0.0, 1.0), width=width, height=height, fx=f)
+        for k, eye in enumerate(eyes)
+    ]
+
+
+def ring4_cameras(width: int = 640, height: int = 480) -> list[Camera]:
+    """Four cameras at uneven azimuths, distances and heights, unlike the axis-aligned studio."""
+    return ring_cameras(RING4_AZIMUTHS_DEG, RING4_DISTANCES, RING4_HEIGHTS, width, height)
+
+
+def rig_cameras(rig: str, width: int = 640, height: int = 480) -> list[Camera]:
+    """Return a studio rig's cameras by name (:data:`RIGS`); unknown names raise ValueError."""
+    if rig == 'orthogonal':
+        return studio_cameras(width, height)
+    if rig == 'ring4':
+        return ring4_cameras(width, height)
+    raise ValueError(f'unknown rig {rig!r}; known: {", ".join(RIGS)}')
 
 
 def street_camera(width: int = 640, height: int = 480) -> list[Camera]:
@@ -131,6 +179,81 @@ def arm_motion(body: Body, duration: float) -> Trajectory:
         return q, None
 
     return trajectory
+
+
+def _bump(t: np.ndarray, start: float, width: float) -> np.ndarray:
+    """Return a raised cosine from 0 up to 1 and back over [start, start + width], 0 elsewhere.
+
+    Its derivative is continuous (0 at both ends), so the motion's velocities exist.
+    """
+    u = np.clip((t - start) / width, 0.0, 1.0)
+    return 0.5 * (1.0 - np.cos(2.0 * np.pi * u))
+
+
+def _ramp(t: np.ndarray, start: float, width: float) -> np.ndarray:
+    """Return a half cosine from 0 to 1 over [start, start + width]: C1, flat before and after."""
+    u = np.clip((t - start) / width, 0.0, 1.0)
+    return 0.5 * (1.0 - np.cos(np.pi * u))
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Return ``angle`` wrapped into (-pi, pi], rad."""
+    return np.pi - np.mod(np.pi - np.asarray(angle, float), 2.0 * np.pi)
+
+
+def dance_motion(body: Body, heading: float = 0.0) -> Trajectory:
+    """Fast whole-body motion in 4 s (:data:`DANCE_SECONDS`) from the start ``heading`` (rad).
+
+    Both arms raised overhead and lowered at different times, a fast forward kick of each leg
+    (hip flexion to 1.3 rad in 0.4 s, the knee bending and straightening), a full turn about the
+    vertical in 1.2 s with a small step sideways, then a squat lowering the pelvis by 0.1 m with
+    the feet flat.  Every coordinate is C1 in time; the yaw is wrapped into (-pi, pi].  After
+    4 s the subject stands still.
+    """
+    base = body.neutral()
+    idx = body.coordinate_index
+    offsets = body.joint_offsets
+    # from the hip to the ankle along the straight leg
+    leg = float(np.linalg.norm(offsets['knee_l']) + np.linalg.norm(offsets['ankle_l']))
+
+    def trajectory(t: np.ndarray):
+        s = np.asarray(t, float)
+        q = np.repeat(base[None], len(s), 0)
+        move = {name: _bump(s, start, width) for name, (start, width) in DANCE_MOVES.items()}
+        turn = _ramp(s, *DANCE_MOVES['turn'])  # a full turn in 1.2 s
+        step = _ramp(s, *DANCE_MOVES['step'])
+        q[:, idx('shoulder_l_x')] = 0.05  # the arms clear of the torso (arm_motion)
+        q[:, idx('shoulder_r_x')] = -0.05
+        for side, arm in (('l', move['left arm overhead']), ('r', move['right arm overhead'])):
+            q[:, idx(f'shoulder_{side}_y')] = 2.7 * arm  # forward and up to 155 degrees: overhead
+            q[:, idx(f'elbow_{side}_y')] = 0.15 + 0.35 * arm  # elbows a little bent throughout
+        # the squat: hips and ankles flex by a, the knees by 2a, so the shanks lean as far forwards
+        # as the thighs back and the feet stay flat; the pelvis sinks by leg (1 - cos a), 0.1 m
+        a = 0.49 * move['squat']
+        for side, name in (('r', 'right kick'), ('l', 'left kick')):
+            kick = move[name]  # up in 0.4 s, down in 0.4 s
+            chamber = _bump(s, DANCE_MOVES[name][0], 0.5)  # the knee bends before the hip
+            hip = 1.3 * kick
+            knee = -1.1 * chamber - 0.3 * kick
+            q[:, idx(f'hip_{side}_y')] = hip + a
+            q[:, idx(f'knee_{side}_y')] = knee - 2.0 * a
+            q[:, idx(f'ankle_{side}_y')] = a - (hip + knee)  # the foot level: no toe in the floor
+        q[:, 2] = base[2] - leg * (1.0 - np.cos(a))
+        q[:, 0] = 0.15 * step  # a small step forward-sideways during the turn
+        q[:, 1] = -0.1 * step
+        q[:, 5] = wrap_angle(heading + 2.0 * np.pi * turn)
+        return q, None
+
+    return trajectory
+
+
+def dance_moves(start: float, end: float | None = None) -> list[str]:
+    """Return the studio-dance moves (:data:`DANCE_MOVES`) under way in [start, end] s.
+
+    To say what the subject was doing where a tracker failed.
+    """
+    end = start if end is None else end
+    return [name for name, (t0, width) in DANCE_MOVES.items() if t0 < end and start < t0 + width]
 
 
 def arc_walk(
@@ -175,19 +298,51 @@ def make_scenario(
     height: int = 480,
     frames: int | None = None,
     frame_rate: float | None = None,
+    *,
+    heading: float | None = None,
+    rig: str | None = None,
 ) -> Scenario:
-    """Build a named scenario; unknown names raise ValueError listing the known ones."""
+    """Build a named scenario; unknown names raise ValueError listing the known ones.
+
+    ``rig`` (:data:`RIGS`, default orthogonal) chooses a studio scenario's cameras and
+    ``heading`` (rad, default 0) where studio-dance starts facing; options a scenario does not
+    take raise ValueError.
+    """
+    if heading is not None and name != 'studio-dance':
+        raise ValueError(f'scenario {name!r} takes no heading (only studio-dance does)')
+    if rig is not None and not name.startswith('studio-'):
+        raise ValueError(f'scenario {name!r} has its own camera; rigs are for the studio')
+    if rig is not None and rig not in RIGS:
+        raise ValueError(f'unknown rig {rig!r}; known: {", ".join(RIGS)}')
+    rig_name = 'orthogonal' if rig is None else rig
+    rig_text = 'three orthogonal cameras' if rig_name == 'orthogonal' else RING4_TEXT
+    if name == 'studio-dance':
+        rate = frame_rate or 30.0
+        n = frames or int(round(DANCE_SECONDS * rate))
+        start = 0.0 if heading is None else float(heading)
+        if not np.isfinite(start):
+            raise ValueError(f'heading must be finite, not {heading}')
+        return Scenario(
+            name,
+            rig_cameras(rig_name, width, height),
+            rate,
+            n,
+            dance_motion(body, start),
+            f'{rig_text}, fast whole-body motion from heading {np.degrees(start):.0f} deg: arms '
+            'overhead, a kick of each leg, a full turn in 1.2 s, a squat',
+            STUDIO_EMPTY_FRAMES,
+            _studio_contours(),
+        )
     if name == 'studio-arm':
         rate = frame_rate or 30.0
         n = frames or 90
         return Scenario(
             name,
-            studio_cameras(width, height),
+            rig_cameras(rig_name, width, height),
             rate,
             n,
             arm_motion(body, n / rate),
-            'three orthogonal cameras, right arm moving in 3D with elbow flexion and forearm '
-            'rotation',
+            f'{rig_text}, right arm moving in 3D with elbow flexion and forearm rotation',
             STUDIO_EMPTY_FRAMES,
             _studio_contours(),
         )
@@ -196,14 +351,13 @@ def make_scenario(
         n = frames or 90
         return Scenario(
             name,
-            studio_cameras(width, height),
+            rig_cameras(rig_name, width, height),
             rate,
             n,
             arc_walk(
                 body, radius=1.0, speed=1.1, start_angle=np.radians(-100.0), cycle_length=1.3
             ),
-            'three orthogonal cameras, walking on a 1 m circle (turning), legs occluding each '
-            'other',
+            f'{rig_text}, walking on a 1 m circle (turning), legs occluding each other',
             STUDIO_EMPTY_FRAMES,
             _studio_contours(),
         )
@@ -230,7 +384,25 @@ def make_scenario(
     raise ValueError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
 
 
-SCENARIOS = ('studio-arm', 'studio-walk', 'street-walk')
+SCENARIOS = ('studio-arm', 'studio-walk', 'street-walk', 'studio-dance')
+DANCE_SECONDS = 4.0  # studio-dance's motion; a longer sequence ends standing still
+# studio-dance's timeline: each move's start and duration, s (arms and kicks rise in half of it)
+DANCE_MOVES: dict[str, tuple[float, float]] = {
+    'left arm overhead': (0.2, 1.1),
+    'right kick': (0.7, 0.8),
+    'right arm overhead': (1.0, 1.1),
+    'left kick': (1.6, 0.8),
+    'step': (1.8, 2.0),
+    'turn': (2.2, 1.2),
+    'squat': (2.9, 1.0),
+}
+RIGS = ('orthogonal', 'ring4')  # the studio scenarios' camera rigs
+# ring4: azimuths 80-95 degrees apart, at different distances and heights, as a rig might be put up
+# in a room: its optical axes meet at 80, 86, 92, 94, 145 and 165 degrees, none along a world axis
+RING4_AZIMUTHS_DEG = (20.0, 115.0, 205.0, 300.0)
+RING4_DISTANCES = (4.0, 4.5, 3.6, 4.2)
+RING4_HEIGHTS = (1.2, 2.6, 1.7, 2.1)
+RING4_TEXT = 'four cameras on an uneven ring (20, 115, 205, 300 deg; 3.6-4.5 m; 1.2-2.6 m high)'
 # a studio session starts with the empty studio, so the background can be learnt before the subject
 # enters
 # the street's walker_node (Rohr's MEMO): its presence in a studio file makes `memo-ros launch`

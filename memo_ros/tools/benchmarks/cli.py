@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 import shlex
 
+from memo_ros.tools.benchmarks import dance as bench_dance
 from memo_ros.tools.benchmarks import graph as bench_graph
 from memo_ros.tools.benchmarks.foundation import (
     print_report,
@@ -16,7 +17,16 @@ from memo_ros.tools.benchmarks.foundation import (
 from memo_ros.tools.benchmarks.graph_figures import print_graph_benchmark
 from memo_ros.tools.benchmarks.report import machine, with_command
 
-SUITES = ('foundation', 'contours', 'contour-node', 'selector', 'tracker', 'walker', 'graph')
+SUITES = (
+    'foundation',
+    'contours',
+    'contour-node',
+    'selector',
+    'tracker',
+    'walker',
+    'graph',
+    'dance',
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "frame on a street-walk, initialization and tracking, against the paper's exhaustive grid "
         '(--repeat: passes over the sequence); graph = the whole live graph (3 contour nodes, '
         'selector, tracker) fed a 3-camera 640x480 bag at 30 and 60 Hz: latency per stage and end '
-        'to end, rates, drops, CPU and memory per process',
+        'to end, rates, drops, CPU and memory per process; dance = the articulated tracker on '
+        'studio-dance from 8 headings on the orthogonal and the ring4 rig against issue 16: '
+        'MPJPE, heading error after 1 s, side swaps, limb exchanges per run (--headings, --rig, '
+        '--frames, --size, --contours, --jobs)',
     )
     parser.add_argument(
         '--repeat', type=int, default=20, help='timed repetitions per renderer case (default 20)'
@@ -44,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '--json', action='store_true', help='print one JSON object instead of the table'
     )
     bench_graph.add_arguments(parser)
+    bench_dance.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,6 +120,8 @@ def _suite(name: str):
         )
     if name == 'graph':
         return bench_graph.measure, with_command(print_graph_benchmark)
+    if name == 'dance':
+        return bench_dance.measure, with_command(bench_dance.print_dance_benchmark)
     if name == 'contour-node':
         from memo_ros.tools.benchmarks.contour_node import (
             print_node_benchmark,
@@ -126,6 +142,8 @@ def command_line(args: argparse.Namespace) -> str:
     """Return the command line that reproduces this run."""
     if args.suite == 'graph':
         options = bench_graph.command_words(args)
+    elif args.suite == 'dance':
+        options = bench_dance.command_words(args)
     else:
         options = (
             [] if args.suite == 'contour-node' else ['--repeat', str(args.repeat)]

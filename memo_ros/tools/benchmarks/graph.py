@@ -85,9 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         '--frames',
         type=int,
-        default=FRAMES,
         help=f'graph: subject frames of the simulated bag (default {FRAMES}; the studio adds '
-        'its empty frames before them)',
+        'its empty frames before them); dance: the first frames of the dance (default all)',
     )
     parser.add_argument(
         '--warmup',
@@ -114,7 +113,8 @@ def command_words(args: argparse.Namespace) -> list[str]:
     words = ['--rates', args.rates, '--warmup', str(args.warmup)] + (
         ['--loops', str(args.loops)] if args.loops > 1 else []
     )
-    return words + (['--bag', str(args.bag)] if args.bag else ['--frames', str(args.frames)])
+    frames = FRAMES if args.frames is None else args.frames
+    return words + (['--bag', str(args.bag)] if args.bag else ['--frames', str(frames)])
 
 
 def parse_rates(text: str) -> list[float]:
@@ -133,13 +133,14 @@ def measure(args: argparse.Namespace) -> dict:
         rates = parse_rates(args.rates)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    if args.frames < 1 or args.warmup < 0 or args.loops < 1:
+    frames = FRAMES if args.frames is None else args.frames
+    if frames < 1 or args.warmup < 0 or args.loops < 1:
         raise CliError('--frames and --loops must be at least 1 and --warmup not negative')
     if args.bag is not None:
         studio = args.bag.with_name(args.bag.name + '.yaml')
         if not args.bag.exists() or not studio.is_file():
             raise CliError(f'need the bag {args.bag} and its studio file {studio}')
-    return run_graph_benchmark(rates, args.frames, args.warmup, args.bag, loops=args.loops)
+    return run_graph_benchmark(rates, frames, args.warmup, args.bag, loops=args.loops)
 
 
 def run_rate(

@@ -23,6 +23,7 @@ from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render
 from memo_ros.core.multiview.tracking import ArticulatedTracker, TrackerSettings
 from memo_ros.core.simulation.scenarios import make_scenario
+from memo_ros.core.simulation.scenarios import ring_cameras as studio_ring
 from memo_ros.core.vision.contours import (
     occluding_contours,
     perimeter,
@@ -54,16 +55,9 @@ def _resampled(outlines: list[np.ndarray], count: int) -> np.ndarray:
 
 def ring_cameras(count: int, width: int = 640, height: int = 480) -> list[Camera]:
     """``count`` cameras evenly round the studio, 4 m out, at heights from 1.2 to 2.5 m."""
-    cameras = []
-    for k in range(count):
-        azimuth = 2 * np.pi * k / count + 0.3
-        eye = (4.0 * np.cos(azimuth), 4.0 * np.sin(azimuth), 1.2 + 1.3 * (k % 3) / 2)
-        cameras.append(
-            Camera.look_at(
-                f'cam_ring{k}', eye, (0.0, 0.0, 1.0), width=width, height=height, fx=650.0
-            )
-        )
-    return cameras
+    k = np.arange(count)
+    azimuths = np.degrees(2 * np.pi * k / count + 0.3)
+    return studio_ring(azimuths, 4.0, 1.2 + 1.3 * (k % 3) / 2, width, height)
 
 
 def _timed_steps(body, cameras, q, times, frames, repeat, settings) -> tuple[np.ndarray, list]:
