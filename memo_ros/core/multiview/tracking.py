@@ -430,7 +430,8 @@ class ArticulatedTracker:
         kicks, and the other views tell the two apart only once the legs are exchanged.  A pair is
         tried whenever its left-right difference has changed by ``limb_exchange`` since its last
         try (fast limb motion): exchanged, refined by one iteration and kept if it fits better by
-        ``exchange_margin`` per sample.
+        ``exchange_margin`` per sample than the pose as it stands given the same iteration (an
+        extra iteration alone lowers the misfit of a pose the frame's two have not settled).
         """
         s = self.settings
         counts = self._last_counts
@@ -440,14 +441,18 @@ class ArticulatedTracker:
             if np.max(np.abs(difference - self.exchange_tried[pair])) < s.limb_exchange:
                 continue
             self.exchange_tried[pair] = difference
-            if current is None:
-                current = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+            if current is None:  # the pose as it stands, given the same extra iteration
+                current = self._fit_cost(
+                    self._refined(self.ekf.q, self.ekf.v, self.ekf.P, contours, rays, masks).q,
+                    contours,
+                    rays,
+                    masks,
+                    samples,
+                )
             q, M = self.anatomy.exchange(self.ekf.q, pair)
-            trial = ArticulatedEKF(self.model)
-            trial.q, trial.v, trial.P = q, M @ self.ekf.v, _mapped_covariance(self.ekf.P, M)
-            trial.update(self._measurement_function(contours, rays, masks), 1, s.gate_sigma)
-            if s.hard_limits:
-                self._clamp(trial)
+            trial = self._refined(
+                q, M @ self.ekf.v, _mapped_covariance(self.ekf.P, M), contours, rays, masks
+            )
             cost = self._fit_cost(trial.q, contours, rays, masks, samples)
             if cost < current - s.exchange_margin * samples:
                 self.ekf = trial
@@ -455,6 +460,15 @@ class ArticulatedTracker:
                 self.exchange_tried[pair] = self.anatomy.difference(trial.q, pair)
                 current = cost
         self._last_counts = counts
+
+    def _refined(self, q, v, P, contours, rays, masks) -> ArticulatedEKF:
+        """Return a filter at (q, v, P) after one more update on this frame, in the ranges."""
+        ekf = ArticulatedEKF(self.model)
+        ekf.q, ekf.v, ekf.P = np.array(q, float), np.array(v, float), np.array(P, float)
+        ekf.update(self._measurement_function(contours, rays, masks), 1, self.settings.gate_sigma)
+        if self.settings.hard_limits:
+            self._clamp(ekf)
+        return ekf
 
     def _twin_filter(self, ekf: ArticulatedEKF, free: np.ndarray) -> ArticulatedEKF:
         """Return a filter at the twin of ``ekf``'s state, its covariance carried by the same map.
