@@ -238,10 +238,11 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'limb_exchange',
-        0.5,
+        0.0,
         'rad a pair of limbs (legs, arms) changes its left-right difference by before it is tried '
         'exchanged, left for right; the exchange is kept when it fits the contours better (a fast '
-        'kick seen from the side); 0 never tries',
+        'kick seen from the side); 0 (default) never tries: on noisy studio-arm it exchanged '
+        'wrongly',
         0.0,
         10.0,
     ),

@@ -96,7 +96,7 @@ class TrackerSettings:
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
-    limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
+    limb_exchange: float = 0.0  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
