@@ -19,12 +19,11 @@ import numpy as np
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import Body, load_default_body
-from memo_ros.core.geometry.render import render
 from memo_ros.core.geometry.rotations import matrix_to_quat
 from memo_ros.core.simulation.imaging import (
     ImagingOptions,
     background_image,
-    compose_frame,
+    simulated_frame,
 )
 from memo_ros.core.simulation.scenarios import RIGS, SCENARIOS, Scenario, make_scenario
 from memo_ros.ros.bagio import (
@@ -308,7 +307,6 @@ def _write_bag(
         names.append('gait_phase')
     total = scenario.empty_frames + scenario.frames
     bar = Progress(total, 'simulate', enabled=progress)
-    nobody = np.zeros(0, int)
     with BagWriter(out, storage) as writer:
         for k in range(total):
             stamp = START_NS + int(round(k / scenario.frame_rate * 1e9))
@@ -317,22 +315,16 @@ def _write_bag(
             for cam in scenario.cameras:
                 if k >= drop.get(cam.name, total + 1):
                     continue
-                rendering = render(
+                pixels = simulated_frame(
                     cam,
+                    body,
                     rotations,
                     origins,
-                    body.semi_axes,
-                    body.lengths,
-                    normals=True,
-                    parts=nobody if b < 0 else None,
-                )
-                pixels = compose_frame(
                     backgrounds[cam.name],
-                    rendering,
-                    cam,
                     options,
                     k,
                     rng,
+                    empty=b < 0,
                     colour=encoding not in ('mono8', 'mono16'),
                 )
                 # camera_info first, as a driver's calibration precedes the pixels that need it

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from memo_ros.core.geometry.body import PART_NAMES
+from memo_ros.core.geometry.body import PART_NAMES, Body
 from memo_ros.core.geometry.camera import Camera
-from memo_ros.core.geometry.render import Rendering
+from memo_ros.core.geometry.render import Rendering, render
 
 # clothing: light shirt, skin, dark trousers, black shoes (grey levels 0..255)
 PART_ALBEDO = {
@@ -145,3 +145,28 @@ def compose_frame(
     if options.noise > 0:
         image = image + rng.normal(0.0, options.noise, image.shape).astype(np.float32)
     return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+
+
+def simulated_frame(
+    camera: Camera,
+    body: Body,
+    rotations: np.ndarray,
+    origins: np.ndarray,
+    background: np.ndarray,
+    options: ImagingOptions,
+    frame_index: int,
+    rng: np.random.Generator,
+    empty: bool = False,
+    colour: bool = False,
+) -> np.ndarray:
+    """Render the posed body (none when ``empty``: the studio before him) into one frame."""
+    rendering = render(
+        camera,
+        rotations,
+        origins,
+        body.semi_axes,
+        body.lengths,
+        normals=True,
+        parts=np.zeros(0, int) if empty else None,
+    )
+    return compose_frame(background, rendering, camera, options, frame_index, rng, colour)

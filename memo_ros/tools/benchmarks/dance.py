@@ -226,7 +226,7 @@ def _contour_frames(
     does, through :class:`ContourPipeline` with the contour node's studio settings;
     ``silhouettes``: the exact outlines of the rendered body.
     """
-    from memo_ros.core.simulation.imaging import ImagingOptions, background_image, compose_frame
+    from memo_ros.core.simulation.imaging import ImagingOptions, background_image, simulated_frame
     from memo_ros.core.vision.contours import (
         ContourPipeline,
         occluding_contours,
@@ -253,22 +253,14 @@ def _contour_frames(
     pipelines = {
         c.name: ContourPipeline(pipeline_settings(scenario.contour_parameters)) for c in cameras
     }
-    nobody = np.zeros(0, int)
     for k in range(scenario.empty_frames + len(q)):
         b = k - scenario.empty_frames  # the subject's frame; negative while the studio is empty
         rotations, origins = body.forward_kinematics(q[max(b, 0)])
         tables = {}
         for c in cameras:
-            rendering = render(
-                c,
-                rotations,
-                origins,
-                body.semi_axes,
-                body.lengths,
-                normals=True,
-                parts=nobody if b < 0 else None,
+            pixels = simulated_frame(
+                c, body, rotations, origins, backgrounds[c.name], options, k, rng, empty=b < 0
             )
-            pixels = compose_frame(backgrounds[c.name], rendering, c, options, k, rng)
             tables[c.name] = pipelines[c.name].process(pixels, edges=False).contours
         if b >= 0:
             yield tables
