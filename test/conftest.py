@@ -18,6 +18,24 @@ import time
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
+
+
+def memo_ros_cli(*args: object, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    """Run `memo-ros ARGS` in a fresh interpreter on this checkout, capturing its output."""
+    env = dict(
+        os.environ,
+        PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get('PYTHONPATH')])),
+    )
+    return subprocess.run(
+        [sys.executable, '-c', CLI_ENTRY, *map(str, args)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
 _serial = itertools.count()
 
 

@@ -5,11 +5,7 @@ Also `memo-ros simulate`'s --heading and --rig (no DDS).
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-import subprocess
-import sys
-
+from conftest import memo_ros_cli
 import numpy as np
 import pytest
 
@@ -24,8 +20,6 @@ from memo_ros.core.simulation.scenarios import (
 )
 from memo_ros.tools.simulate import simulate
 
-ROOT = Path(__file__).resolve().parent.parent
-CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
 BODY = load_default_body()
 DT = 1.0 / 30.0
 
@@ -38,21 +32,6 @@ def _dance(heading_deg: float = 0.0, rig: str = 'orthogonal', frames: int | None
     q, phase = scenario.coordinates(np.arange(scenario.frames) / scenario.frame_rate)
     assert phase is None
     return scenario, q
-
-
-def _cli(*args: object) -> subprocess.CompletedProcess:
-    """Run `memo-ros ARGS` in a fresh interpreter on this checkout."""
-    env = dict(
-        os.environ,
-        PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get('PYTHONPATH')])),
-    )
-    return subprocess.run(
-        [sys.executable, '-c', CLI_ENTRY, *map(str, args)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
 
 
 def test_every_frame_is_a_pose_a_person_can_take_with_the_feet_on_the_floor():
@@ -165,7 +144,7 @@ def test_simulate_writes_the_rig_and_the_first_pose_into_the_studio(tmp_path):
 def test_simulate_cli_heading_default_is_random_from_the_seed_and_printed(tmp_path):
     outputs = []
     for label, seed in (('a', 3), ('b', 3), ('c', 4)):
-        done = _cli(
+        done = memo_ros_cli(
             'simulate', 'studio-dance', '--frames', 1, '--width', 80, '--height', 60,
             '--empty-frames', 0, '--seed', seed, '--out', tmp_path / label,
         )  # fmt: skip
@@ -180,7 +159,7 @@ def test_simulate_cli_heading_default_is_random_from_the_seed_and_printed(tmp_pa
         )
         outputs.append(heading)
     assert outputs[0] == outputs[1] != outputs[2]
-    done = _cli(
+    done = memo_ros_cli(
         'simulate', 'studio-dance', '--heading', -45, '--rig', 'ring4', '--frames', 1,
         '--width', 80, '--height', 60, '--empty-frames', 0, '--out', tmp_path / 'given',
     )  # fmt: skip
@@ -199,7 +178,7 @@ def test_simulate_cli_heading_default_is_random_from_the_seed_and_printed(tmp_pa
     ],
 )
 def test_simulate_cli_refuses_bad_heading_and_rig_in_one_line(tmp_path, args, words):
-    done = _cli('simulate', *args, '--frames', 1, '--out', tmp_path / 'bag')
+    done = memo_ros_cli('simulate', *args, '--frames', 1, '--out', tmp_path / 'bag')
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert words in lines[-1] and 'Traceback' not in done.stderr, done.stderr

@@ -4,11 +4,9 @@ Known errors in, the same numbers out (no DDS).
 """
 
 import json
-import os
 from pathlib import Path
-import subprocess
-import sys
 
+from conftest import memo_ros_cli
 import cv2
 import numpy as np
 import pytest
@@ -28,10 +26,8 @@ from memo_ros.ros.bagio import BagWriter, joint_state_msg, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
 
-ROOT = Path(__file__).resolve().parent.parent
 # what the `memo-ros` entry point runs (`-m memo_ros.tools.cli` loads cli.py twice, splitting
 # CliError)
-CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
 SUMMARY_KEYS = (
     'frames',
     'mpjpe_mm_mean',
@@ -43,21 +39,6 @@ SUMMARY_KEYS = (
 )
 SHIFT_MM = 12.0
 TILT_DEG = 2.0
-
-
-def memo_ros_cli(*args: str) -> subprocess.CompletedProcess:
-    """Run `memo-ros ARGS` in a fresh interpreter on this checkout."""
-    env = dict(
-        os.environ,
-        PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get('PYTHONPATH')])),
-    )
-    return subprocess.run(
-        [sys.executable, '-c', CLI_ENTRY, *map(str, args)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
 
 
 def evaluate_json(truth: Path, estimate: Path, *extra: str) -> dict:

@@ -4,11 +4,9 @@ Silhouette IoU per camera, frames lost, overlays.
 """
 
 import json
-import os
 from pathlib import Path
-import subprocess
-import sys
 
+from conftest import memo_ros_cli
 import numpy as np
 import pytest
 
@@ -18,23 +16,6 @@ from memo_ros.core.geometry.rotations import matrix_to_quat
 from memo_ros.ros.bagio import BagWriter, header, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
 from memo_ros.tools.simulate import simulate
-
-ROOT = Path(__file__).resolve().parent.parent
-CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
-
-
-def memo_ros_cli(*args) -> subprocess.CompletedProcess:
-    env = dict(
-        os.environ,
-        PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get('PYTHONPATH')])),
-    )
-    return subprocess.run(
-        [sys.executable, '-c', CLI_ENTRY, *map(str, args)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
 
 
 @pytest.fixture(scope='module')
@@ -72,7 +53,9 @@ def write_estimate(path: Path, track, offset=np.zeros(3), outcomes=None) -> Path
 
 
 def evaluate(estimate: Path, images: Path, *extra) -> dict:
-    done = memo_ros_cli('evaluate', '--estimate', estimate, '--images', images, '--json', *extra)
+    done = memo_ros_cli(
+        'evaluate', '--estimate', estimate, '--images', images, '--json', *extra, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
 
@@ -129,7 +112,7 @@ def test_frames_lost_after_the_start_are_counted_with_their_reasons(arm, tmp_pat
 
 
 def test_evaluate_needs_truth_or_images(tmp_path):
-    done = memo_ros_cli('evaluate', '--estimate', tmp_path / 'none')
+    done = memo_ros_cli('evaluate', '--estimate', tmp_path / 'none', timeout=300)
     assert done.returncode != 0 and 'Traceback' not in done.stderr
     assert '--images' in done.stderr
 
