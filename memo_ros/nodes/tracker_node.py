@@ -247,6 +247,23 @@ PARAMS: tuple[Param, ...] = (
         10.0,
     ),
     Param(
+        'recover_margin',
+        1.0,
+        "misfit (sigma^2 per contour sample) above the track's running usual at which the pose, "
+        'and the pose with each pair of limbs exchanged, are refitted from a broad prior and the '
+        'best kept (a lost limb re-initialised); 0 never re-searches',
+        0.0,
+        100.0,
+    ),
+    Param(
+        'hold_sigma_px',
+        2.0,
+        "noise (px) of the silhouette's hold on a model outline node that projects outside a "
+        "camera's silhouette: the node is pulled back; 0 switches the hold off",
+        0.0,
+        100.0,
+    ),
+    Param(
         'max_lag',
         1.0,
         'the live latency policy: frames are tracked in order, but one older than the newest '
@@ -294,6 +311,8 @@ def tracker_settings(p: dict) -> TrackerSettings:
         twin_evidence=p['twin_evidence'],
         twin_recheck=p['twin_recheck'],
         limb_exchange=p['limb_exchange'],
+        recover_margin=p['recover_margin'],
+        hold_sigma_px=p['hold_sigma_px'],
         process_noise=ProcessNoise(
             p['process_noise_translation'],
             p['process_noise_root_rotation'],
@@ -770,6 +789,7 @@ class TrackerNode(Node):
         self.health.set('heading_undecided', str(result.undecided).lower())
         self.health.set('twin_swaps', result.twin_swaps)
         self.health.set('limb_exchanges', result.limb_exchanges)
+        self.health.set('recoveries', result.recoveries)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:

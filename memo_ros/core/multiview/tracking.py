@@ -44,6 +44,7 @@ from memo_ros.core.multiview.motion import (
     ProcessNoise,
     coordinate_rates,
 )
+from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fields
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 TWIN_CHECK_FRAMES = 3  # frames a decided leader is checked against its twin
@@ -98,6 +99,12 @@ class TrackerSettings:
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
     limb_exchange: float = 0.0  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
+    recover_margin: float = 1.0  # misfit (sigma^2 / sample) over the usual that starts a search
+    recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
+    recover_memory: float = 0.9  # per-frame factor of the running usual misfit
+    hold_sigma_px: float = 2.0  # noise of the silhouette's hold on a node outside it (0: off)
+    hold_tolerance_px: float = 2.0  # how far outside the silhouette a node may lie unpulled
+    hold_cap_px: float = 4.0  # the largest pull of one node in one iteration, pixels
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
@@ -125,6 +132,7 @@ class FrameResult:
     )
     twin_swaps: int = 0  # times the twin won and took the pose's place, since the start
     limb_exchanges: int = 0  # times a pair of limbs fitted better exchanged, since the start
+    recoveries: int = 0  # times a re-search from a broad prior fitted better, since the start
 
 
 class ArticulatedTracker:
@@ -153,6 +161,10 @@ class ArticulatedTracker:
         self.limit_high = self.anatomy.limit_high
         self.twin_swaps = 0
         self.limb_exchanges = 0
+        self.recoveries = self.recoveries_tried = 0
+        self._fields_of: dict | None = None  # the contours the silhouette fields were made from
+        self._fields: dict = {}
+        self._holding = True  # the silhouette holds the body (not during the heading search)
         self.reset()
 
     # ------------------------------------------------------------ state
@@ -165,6 +177,7 @@ class ArticulatedTracker:
         self.status = WAITING
         self.stamp_ns: int | None = None
         self.bad_frames = 0
+        self.usual_cost: float | None = None  # running misfit per sample of the track (_recover)
         self.pending_pose: np.ndarray | None = self.initial_pose if use_initial_pose else None
         self.twin_ekf: ArticulatedEKF | None = None  # the leader's twin, while it is followed
         self._start_twin: np.ndarray | None = (
@@ -239,7 +252,11 @@ class ArticulatedTracker:
             from_pose = self.pending_pose is not None
             if from_pose:  # the heading a user or the studio gave counts as decided evidence
                 self.evidence = self.settings.twin_evidence
-            self._initialise(stamp_ns, contours, rays)
+            self._holding = False
+            try:
+                self._initialise(stamp_ns, contours, rays)
+            finally:
+                self._holding = True
             initialised = True
         else:
             if self.stamp_ns is None:  # never: a tracked frame sets it
@@ -255,6 +272,8 @@ class ArticulatedTracker:
             self._clamp(self.ekf)
         if self.settings.limb_exchange > 0 and not initialised:
             self._exchange_limbs(contours, rays, masks, samples)
+        if self.settings.recover_margin > 0:
+            self._recover(contours, rays, masks, samples, initialised)
         if self.settings.twin_evidence > 0:
             self._follow_twin(
                 contours, rays, masks, samples, dt, initialised and not from_pose, free
@@ -298,6 +317,7 @@ class ArticulatedTracker:
             self.undecided,
             self.twin_swaps,
             self.limb_exchanges,
+            self.recoveries,
         )
 
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
@@ -461,6 +481,44 @@ class ArticulatedTracker:
                 current = cost
         self._last_counts = counts
 
+    def _recover(self, contours, rays, masks, samples: int, initialised: bool) -> None:
+        """Search again from a broad prior when the fit is much worse than the track's usual.
+
+        A limb the filter lost (the fast kick followed by the other leg, an arm dragged up by its
+        raised neighbour) leaves the pose in a local minimum whose misfit is well above the
+        track's running usual, and the filter's own small steps cannot leave it.  Then the pose,
+        and the pose with each pair of limbs exchanged, are refitted from a broad prior like a
+        start (``recover_iterations``, within the ranges), and the best is kept if it fits better:
+        re-initialising what was lost without forgetting the rest (the rates and covariance stay).
+        """
+        s = self.settings
+        counts = self._last_counts
+        cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples) / max(samples, 1)
+        if initialised or self.usual_cost is None:
+            self.usual_cost = cost
+            self._last_counts = counts
+            return
+        if cost > self.usual_cost + s.recover_margin:
+            self.recoveries_tried += 1
+            best: tuple[float, ArticulatedEKF, np.ndarray] | None = None
+            starts = [(self.ekf.q, np.eye(self.body.n_coordinates))]
+            starts += [self.anatomy.exchange(self.ekf.q, pair) for pair in self.anatomy.limbs]
+            for q, M in starts:
+                trial = ArticulatedEKF(self.model)
+                self._refit(trial, q, contours, rays, masks, iterations=s.recover_iterations)
+                trial_cost = self._fit_cost(trial.q, contours, rays, masks, samples)
+                trial_cost /= max(samples, 1)
+                if trial_cost < cost and (best is None or trial_cost < best[0]):
+                    best = (trial_cost, trial, M)
+            if best is not None:
+                cost, trial, M = best
+                self.ekf.q = trial.q
+                self.ekf.v = M @ self.ekf.v
+                self.ekf.P = _mapped_covariance(self.ekf.P, M)
+                self.recoveries += 1
+        self.usual_cost = s.recover_memory * self.usual_cost + (1 - s.recover_memory) * cost
+        self._last_counts = counts
+
     def _refined(self, q, v, P, contours, rays, masks) -> ArticulatedEKF:
         """Return a filter at (q, v, P) after one more update on this frame, in the ranges."""
         ekf = ArticulatedEKF(self.model)
@@ -484,7 +542,14 @@ class ArticulatedTracker:
         return twin
 
     def _refit(
-        self, ekf: ArticulatedEKF, q: np.ndarray, contours, rays, masks, clamp: bool = True
+        self,
+        ekf: ArticulatedEKF,
+        q: np.ndarray,
+        contours,
+        rays,
+        masks,
+        clamp: bool = True,
+        iterations: int | None = None,
     ) -> UpdateReport:
         """Fit a start pose to one frame from a broad prior.
 
@@ -495,7 +560,7 @@ class ArticulatedTracker:
         sigma_q = np.where(np.arange(len(q)) < 3, 0.3, 0.5)
         sigma_v = np.where(np.arange(len(q)) < 3, 0.3, 0.5)
         report = UpdateReport()
-        left = max(s.init_iterations, 1)
+        left = max(s.init_iterations if iterations is None else iterations, 1)
         while left > 0:
             ekf.initialize(q, None, sigma_q, sigma_v)
             report = ekf.update(
@@ -536,9 +601,9 @@ class ArticulatedTracker:
         """
         if not frame:
             out = []
-            for cam, cand in zip(
-                cams, rig_outline_candidates(cams, self.nodes, rotations, origins)
-            ):
+            every = rig_outline_candidates(cams, self.nodes, rotations, origins)
+            frame['hold'] = [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in every]
+            for cam, cand in zip(cams, every):
                 near = np.all(np.isfinite(cand.uv), axis=1)
                 if len(
                     rays[cam.name].uv
@@ -576,9 +641,8 @@ class ArticulatedTracker:
         s = self.settings
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
-        frame: dict[
-            str, FirstOutline
-        ] = {}  # the first linearisation's outline test (see _candidates)
+        frame: dict = {}  # the first linearisation's outline test and hold nodes (_candidates)
+        fields = self._silhouettes(contours) if s.hold_sigma_px > 0 and self._holding else {}
         # noise per unit of contour length: denser samples each carry less independent information
         density = {
             c: np.sqrt(REFERENCE_SPACING_PX / sample_spacing(t)) for c, t in contours.items()
@@ -652,6 +716,14 @@ class ArticulatedTracker:
                             np.full(3 * int(side.sum()), s.sigma_normal),
                         )
                     )
+            if fields:
+                hold = self._hold_rows(cams, fields, frame, rotations, origins)
+                if hold is not None:
+                    parts.append(hold[0])
+                    points.append(hold[1])
+                    g.append(hold[2])
+                    rows_r.append(hold[3])
+                    rows_s.append(np.full(len(hold[3]), s.hold_sigma_px))
             # eq. 9: m^T H R^-1 L, every camera's image forces at once
             rows_H = (
                 [
@@ -679,6 +751,50 @@ class ArticulatedTracker:
             )
 
         return measure
+
+    def _silhouettes(self, contours: dict[str, np.ndarray]) -> dict:
+        """Return the frame's silhouette fields, computed once for all its linearisations."""
+        if self._fields_of is not contours:
+            self._fields_of, self._fields = contours, silhouette_fields(self.cameras, contours)
+        return self._fields
+
+    def _hold_rows(self, cams, fields, frame, rotations, origins):
+        """Return the silhouette's hold (silhouette_hold.py) on the outline nodes outside it.
+
+        Returns (parts, points, g, residuals) like the image forces' rows, or None.  The nodes are
+        the first linearisation's outline nodes of every part, re-projected at each iterate.
+        """
+        s = self.settings
+        if 'hold_keys' not in frame:
+            cands = frame['hold']
+            frame['hold_keys'] = [_node_keys(c) for c in cands]
+        else:
+            cands = rig_outline_candidates(
+                cams, self.nodes, rotations, origins, frame['hold_keys']
+            )
+        parts, points, g, r = [], [], [], []
+        for cam, cand in zip(cams, cands):
+            field = fields.get(cam.name)
+            if field is None or not len(cand):
+                continue
+            out, direction, residual = outside_pull(
+                field, cand.uv, s.hold_tolerance_px, s.hold_cap_px
+            )
+            if not len(out):
+                continue
+            J = cam.projection_jacobian_camera(cam.world_to_camera(cand.points[out]))
+            ok = np.all(np.isfinite(J.reshape(len(out), -1)), axis=1)
+            out, direction, residual, J = out[ok], direction[ok], residual[ok], J[ok]
+            parts.append(cand.part[out])
+            points.append(cand.points[out])
+            g.append(
+                (direction[:, 0, None] * J[:, 0] + direction[:, 1, None] * J[:, 1])
+                @ cam.R_world_cam.T
+            )
+            r.append(residual)
+        if not parts:
+            return None
+        return np.concatenate(parts), np.concatenate(points), np.concatenate(g), np.concatenate(r)
 
     # ------------------------------------------------------------ initialisation
     def _initialise(self, stamp_ns: int, contours, rays) -> None:
