@@ -429,3 +429,56 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
     finally:
         process.send_signal(2)
         process.communicate(timeout=15)
+
+
+def test_every_frame_of_a_300_hz_burst_is_processed_or_counted_once(ros_env):
+    """300 VGA frames at 300 Hz: far more than a node takes, from a publisher whose queue drops.
+
+    Each is processed, or counted as image_lost (its camera_info came) or frames_missing (a gap
+    in the stamps of both streams).  Only a last frame of which nothing came cannot be known.
+    """
+    frames = 300
+    process = _start_node(ros_env, 'cam_burst', 'background_frames:=3')
+    values: dict[str, str] = {}
+    try:
+        with ros_session('burst', ros_env.domain_id) as (node, executor):
+            image_pub = node.create_publisher(Image, '/cam_burst/image_raw', 10)
+            info_pub = node.create_publisher(CameraInfo, '/cam_burst/camera_info', 10)
+
+            def on_diagnostics(msg: DiagnosticArray) -> None:
+                for status in msg.status:
+                    if status.hardware_id == 'cam_burst':
+                        values.update({kv.key: kv.value for kv in status.values})
+
+            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+            deadline = time.monotonic() + 15
+            while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+                executor.spin_once(timeout_sec=0.1)
+                assert time.monotonic() < deadline, 'contour_node did not appear'
+            time.sleep(1.0)
+            empty = np.random.default_rng(0).integers(90, 110, (480, 640), dtype=np.uint8)
+            start = time.monotonic()
+            for k in range(frames):
+                pixels = empty.copy()
+                pixels[100:300, 200 + k % 100 : 260 + k % 100] = 200
+                image = Image(encoding='mono8', width=640, height=480, step=640)
+                image.data = pixels.tobytes()
+                info = CameraInfo(width=640, height=480, distortion_model='plumb_bob')
+                info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
+                info.d = [0.0] * 5
+                for msg in (image, info):
+                    msg.header.stamp.sec = 100 + k // 300
+                    msg.header.stamp.nanosec = (k % 300) * 3_333_333
+                info_pub.publish(info)
+                image_pub.publish(image)
+                time.sleep(max(start + (k + 1) / 300 - time.monotonic(), 0.0))
+            end = time.monotonic() + 8  # the lost-image timer (2 s) and two diagnostics periods
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.1)
+    finally:
+        process.send_signal(2)
+        process.communicate(timeout=15)
+    processed, dropped = int(values['processed']), int(values.get('dropped.total', 0))
+    print(f'{frames} frames at 300 Hz: {processed} processed, dropped {values}')
+    assert dropped > 0, values  # the burst is meant to overrun the node
+    assert frames - 1 <= processed + dropped <= frames, values

@@ -1,5 +1,7 @@
 """LostFrameCounter: images that never arrived are found from their camera_info, each just once."""
 
+import time
+
 from memo_ros.ros.lost_frames import LostFrameCounter
 
 
@@ -33,3 +35,33 @@ def test_memory_stays_bounded_when_the_announcing_stream_is_not_per_frame():
     for stamp in range(2000, 3000):
         c.received(stamp)
     assert len(c._settled) <= 16 and len(c._settled_set) <= 16
+
+
+def test_an_unanswered_announcement_is_lost_after_a_while_and_its_late_image_is_known():
+    c = LostFrameCounter()
+    c.announced(1)
+    assert c.expired(2.0, now=time.monotonic()) == []  # not yet
+    assert c.expired(2.0, now=time.monotonic() + 3.0) == [1]  # the last frame of a burst
+    assert c.counted_lost(1) and not c.counted_lost(2)
+    assert c.expired(2.0, now=time.monotonic() + 3.0) == []  # once
+
+
+def test_frames_missing_from_both_streams_are_counted_from_the_gaps_in_the_stamps():
+    c = LostFrameCounter()
+    period = 3_333_333
+    missing = 0
+    gone = {20, 21, 22, 40}  # neither image nor camera_info came
+    info_only = {30, 31}  # images lost, camera_info came
+    image_only = {35}  # camera_info lost, image came
+    lost = 0
+    for k in range(1, 60):
+        stamp = k * period
+        if k in gone:
+            continue
+        if k not in image_only:
+            lost += len(c.announced(stamp))
+        if k not in info_only:
+            lost += len(c.received(stamp))
+        missing += c.missing()
+    assert lost == len(info_only)
+    assert missing == len(gone)

@@ -221,6 +221,7 @@ PARAMS = (
         1000,
     ),
 )
+IMAGE_LOST_AFTER_S = 2.0  # wall time after its camera_info by which an image counts as lost
 INFO_QUEUE_DEPTH = 100  # camera_info is small: a deep queue keeps every frame's announcement
 
 
@@ -334,6 +335,10 @@ class ContourNode(Node):
             info_qos,
         )
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
+        # the last images of a burst have no newer image to show they were lost
+        self.create_timer(
+            IMAGE_LOST_AFTER_S / 2, self.health.guard(self._count_expired, 'lost image timer')
+        )
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
@@ -534,10 +539,30 @@ class ContourNode(Node):
                 'camera_info came but its image did not (lost in transport or '
                 'overwritten in a full queue)',
             )
+        self._count_missing()
+
+    def _count_missing(self) -> None:
+        for _ in range(self.lost.missing()):
+            self.health.drop(
+                'frames_missing',
+                'the stamps of this camera skipped frame periods: frames whose image and '
+                'camera_info never came (lost in transport or overwritten in a full queue)',
+            )
+
+    def _count_expired(self) -> None:
+        for _ in self.lost.expired(IMAGE_LOST_AFTER_S):
+            self.health.drop(
+                'image_lost',
+                f'camera_info came but its image did not within {IMAGE_LOST_AFTER_S:g} s (lost '
+                'in transport or overwritten in a full queue)',
+            )
 
     def _on_image(self, msg: Image) -> None:
         self.health.count('frames_in')
         stamp = stamp_to_ns(msg.header.stamp)
+        if self.lost.counted_lost(stamp):  # too late: already counted as image_lost
+            self.health.note('late_images', 'an image came after it was counted lost: ignored')
+            return
         if (
             self.pending is not None
         ):  # another image: the waiting one goes first, with what there is
@@ -584,6 +609,7 @@ class ContourNode(Node):
                 'camera_info came but its image did not (lost in transport or '
                 'overwritten in a full queue)',
             )
+        self._count_missing()
         try:
             image = image_message_to_frame(msg) if self.colour else image_message_to_grey(msg)
         except ImageFormatError as exc:

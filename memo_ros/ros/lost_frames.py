@@ -5,14 +5,21 @@ camera_info subscription is reliable and cheap, the image subscription best
 effort with a short queue: an image dropped on the way or overwritten in a full
 queue never reaches the node's callback, but its camera_info does.  Stamps are
 in order on each stream, so once an image of stamp s arrived, every announced
-stamp before s whose image did not come is lost for good.
+stamp before s whose image did not come is lost for good.  The last images of a
+stream have no newer one after them: an announcement unanswered for long is lost too.
+A frame whose camera_info was lost as well shows only as a gap in the stamps of a
+regular stream: :meth:`LostFrameCounter.missing` counts those.
 """
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
+import time
 
 RECENT = 512  # stamps remembered on each side: far more than any queue holds
+PERIODS = 16  # announcement intervals the frame period is the median of
+GAP = 1.5  # an interval this many periods long or longer has frames missing in it
 
 
 class LostFrameCounter:
@@ -24,9 +31,14 @@ class LostFrameCounter:
     def __init__(self, recent: int = RECENT) -> None:
         self._settled: deque[int] = deque(maxlen=recent)  # received or already counted lost
         self._settled_set: set[int] = set()
-        self._waiting: set[int] = set()
+        self._waiting: dict[int, float] = {}  # announced stamp -> monotonic time it came
+        self._lost: set[int] = set()  # settled stamps that were counted lost
         self._recent = recent
         self.newest_received: int | None = None
+        self._newest_announced: int | None = None
+        self._intervals: deque[int] = deque(maxlen=PERIODS)
+        self._seen: list[int] = []  # stamps of either stream not yet checked for gaps, in order
+        self._checked: int | None = None  # the newest stamp checked for a gap before it
 
     def announced(self, stamp: int) -> list[int]:
         """Return a frame was announced.
@@ -36,15 +48,45 @@ class LostFrameCounter:
         """
         if stamp == 0 or stamp in self._settled_set or stamp in self._waiting:
             return []
+        self._saw(stamp)
+        if self._newest_announced is None or stamp > self._newest_announced:
+            self._newest_announced = stamp
         if self.newest_received is not None and stamp < self.newest_received:
-            self._settle(stamp)
+            self._settle(stamp, lost=True)
             return [stamp]  # a newer image came first: this one's never will
-        if (
-            len(self._waiting) >= self._recent
-        ):  # no image for a long time: the stream is not per frame
-            self._waiting.discard(min(self._waiting))
-        self._waiting.add(stamp)
+        if len(self._waiting) >= self._recent:  # no image for long: the stream is not per frame
+            del self._waiting[min(self._waiting)]
+        self._waiting[stamp] = time.monotonic()
         return []
+
+    def missing(self) -> int:
+        """Return how many more frames of a regular stream came neither as image nor camera_info.
+
+        Both streams have passed every stamp up to the older of their newest: there, consecutive
+        stamps of either stream more than ``GAP`` frame periods apart (the period being the median
+        of the last intervals) have frames missing between them.  0 until the period is known.
+        """
+        if self._newest_announced is None or self.newest_received is None:
+            return 0
+        mark = min(self._newest_announced, self.newest_received)
+        count = 0
+        while self._seen and self._seen[0] <= mark:
+            stamp = self._seen.pop(0)
+            if self._checked is not None:
+                interval = stamp - self._checked
+                known = len(self._intervals) == PERIODS
+                period = sorted(self._intervals)[PERIODS // 2] if known else 0
+                if known and interval >= GAP * period:
+                    count += max(int(round(interval / period)) - 1, 0)
+                else:
+                    self._intervals.append(interval)
+            self._checked = stamp
+        return count
+
+    def _saw(self, stamp: int) -> None:
+        """Remember a stamp of either stream for :meth:`missing`."""
+        if (self._checked is None or stamp > self._checked) and stamp not in self._seen:
+            bisect.insort(self._seen, stamp)
 
     def received(self, stamp: int) -> list[int]:
         """Return an image arrived.
@@ -52,16 +94,33 @@ class LostFrameCounter:
         The announced stamps before it that had none, oldest first (now lost).
         """
         self._settle(stamp)
-        self._waiting.discard(stamp)
+        self._waiting.pop(stamp, None)
+        self._saw(stamp)
         if self.newest_received is None or stamp > self.newest_received:
             self.newest_received = stamp
         lost = sorted(s for s in self._waiting if s < stamp)
-        self._waiting.difference_update(lost)
         for s in lost:
-            self._settle(s)
+            del self._waiting[s]
+            self._settle(s, lost=True)
         return lost
 
-    def _settle(self, stamp: int) -> None:
+    def expired(self, age: float, now: float | None = None) -> list[int]:
+        """Return the announced stamps whose image has not come within ``age`` seconds (now lost).
+
+        Oldest first.
+        """
+        now = time.monotonic() if now is None else now
+        lost = sorted(s for s, came in self._waiting.items() if now - came > age)
+        for s in lost:
+            del self._waiting[s]
+            self._settle(s, lost=True)
+        return lost
+
+    def counted_lost(self, stamp: int) -> bool:
+        """Return whether ``stamp`` was already counted lost (its image came too late)."""
+        return stamp in self._lost
+
+    def _settle(self, stamp: int, lost: bool = False) -> None:
         """Remember ``stamp`` as accounted for (received or lost).
 
         Forgetting the oldest beyond ``recent``.
@@ -69,9 +128,13 @@ class LostFrameCounter:
         if stamp in self._settled_set:
             return
         if len(self._settled) == self._settled.maxlen:
-            self._settled_set.discard(self._settled[0])
+            oldest = self._settled[0]
+            self._settled_set.discard(oldest)
+            self._lost.discard(oldest)
         self._settled.append(stamp)
         self._settled_set.add(stamp)
+        if lost:
+            self._lost.add(stamp)
 
     def reset(self) -> None:
         """Forget everything (time jump backwards)."""
