@@ -191,12 +191,12 @@ def _background_info(sec: int) -> CameraInfo:
 
 
 def _run_background_node(
-    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None
+    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None, before=()
 ) -> tuple[dict, list]:
     """Start a 64x48 contour_node, feed it frames (None: a lost image) with a camera_info each.
 
-    Stamped ``first_sec`` + k, or ``stamps`` (seconds).  Stop it; return its /diagnostics values
-    and its contour clouds.
+    Stamped ``first_sec`` + k, or ``stamps`` (seconds); the messages ``before`` (Image or
+    CameraInfo) go first.  Stop it; return its /diagnostics values and its contour clouds.
     """
     stamps = stamps or [first_sec + k for k in range(len(frames))]
     process = _start_node(ros_env, 'cam_bg', *params)
@@ -219,6 +219,9 @@ def _run_background_node(
                 executor.spin_once(timeout_sec=0.1)
                 assert time.monotonic() < deadline, 'contour_node did not appear'
             time.sleep(1.0)
+            for msg in before:
+                (image_pub if isinstance(msg, Image) else info_pub).publish(msg)
+                executor.spin_once(timeout_sec=0.15)
             for k, pixels in enumerate(frames):
                 info_pub.publish(_background_info(stamps[k]))
                 if pixels is not None:
@@ -314,6 +317,24 @@ def test_one_image_stamped_in_the_past_is_counted_and_changes_no_contour(ros_env
     assert len(clouds) == len(wanted) == len(plain)  # one cloud per processed image
     for got, want in zip(clouds[-len(walking) :], wanted[-len(walking) :]):
         assert len(got) > 20 and np.array_equal(got, want)
+
+
+def test_a_refused_image_stamped_years_ahead_leaves_every_later_frame_processed(ros_env):
+    # the fuzz test's good bag after the fuzzing: a bad image stamped in the future must not make
+    # every later frame look past (its camera_info counted lost at once, its image ignored late)
+    empty, person = _scene()
+    future = 1_900_000_000
+    bad = _background_frame(empty, future)
+    bad.encoding = 'yuv422'  # refused: unsupported_encoding
+    frames = [empty, empty, empty, person, person]
+    values, contours = _run_background_node(
+        ros_env, ('background_frames:=3', 'min_region_area:=20'), frames, 1,
+        before=[_background_info(future), bad],
+    )  # fmt: skip
+    assert int(values['dropped.unsupported_encoding']) == 1, values
+    assert int(values['processed']) == len(frames) and 'late_images' not in values, values
+    assert 'dropped.image_lost' not in values, values  # the bad image answered its camera_info
+    assert len(contours) == len(frames)
 
 
 def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_env, tmp_path):

@@ -65,3 +65,31 @@ def test_frames_missing_from_both_streams_are_counted_from_the_gaps_in_the_stamp
         missing += c.missing()
     assert lost == len(info_only)
     assert missing == len(gone)
+
+
+def test_an_image_the_node_refused_moves_no_clock_whatever_its_stamp():
+    # a fuzzed image stamped years ahead, refused for its encoding: later frames are not past
+    c = LostFrameCounter()
+    future = 1_900_000_000 * 10**9
+    assert c.announced(future) == []
+    c.arrived(future)
+    assert c.announced(1) == [] and c.received(1) == []
+    assert c.announced(2) == [] and c.announced(3) == []
+    assert c.received(3) == [2]  # the node's clock, from the images it took
+    assert not c.counted_lost(1) and not c.counted_lost(3) and c.counted_lost(2)
+
+
+def test_announcements_going_back_start_a_new_timeline_and_its_frames_are_counted_once():
+    c = LostFrameCounter()
+    for stamp in (100, 101):
+        assert c.announced(stamp) == [] and c.received(stamp) == []
+    assert c.announced(102) == []  # its image never comes: the old timeline ends
+    # the bag starts again: camera_info stamped before the newest image waits for its image
+    for stamp in (1, 2, 3):
+        assert c.announced(stamp) == []
+    c.arrived(1)  # the node drops the first two images out of order...
+    c.arrived(2)
+    assert c.reset() == [102]  # ...and resets at the third: the old timeline's last is lost
+    assert c.received(3) == []
+    assert c.announced(4) == [] and c.announced(5) == [] and c.received(5) == [4]
+    assert not any(c.counted_lost(s) for s in (1, 2, 3, 5))

@@ -534,12 +534,15 @@ class ContourNode(Node):
             )
         self.camera_info = msg
         for _ in self.lost.announced(stamp_to_ns(msg.header.stamp)):
-            self.health.drop(
-                'image_lost',
-                'camera_info came but its image did not (lost in transport or '
-                'overwritten in a full queue)',
-            )
+            self._count_lost()
         self._count_missing()
+
+    def _count_lost(self, detail: str = '') -> None:
+        self.health.drop(
+            'image_lost',
+            f'camera_info came but its image did not{detail} (lost in transport or '
+            'overwritten in a full queue)',
+        )
 
     def _count_missing(self) -> None:
         for _ in range(self.lost.missing()):
@@ -551,18 +554,29 @@ class ContourNode(Node):
 
     def _count_expired(self) -> None:
         for _ in self.lost.expired(IMAGE_LOST_AFTER_S):
-            self.health.drop(
-                'image_lost',
-                f'camera_info came but its image did not within {IMAGE_LOST_AFTER_S:g} s (lost '
-                'in transport or overwritten in a full queue)',
-            )
+            self._count_lost(f' within {IMAGE_LOST_AFTER_S:g} s')
+
+    def _backward_run(self, stamp: int) -> list[int]:
+        """Return the run of images stamped before the newest processed one, ending with this one.
+
+        Each must be newer than the one before it to make one new timeline.
+        """
+        run = self.backward_stamps
+        return [*run, stamp] if run and stamp > run[-1] else [stamp]
 
     def _on_image(self, msg: Image) -> None:
-        self.health.count('frames_in')
         stamp = stamp_to_ns(msg.header.stamp)
-        if self.lost.counted_lost(stamp):  # too late: already counted as image_lost
+        backward = self.last_stamp_ns is not None and stamp < self.last_stamp_ns
+        run = self._backward_run(stamp) if backward else []
+        jumped = len(run) >= self.params['jump_back_frames']
+        if self.lost.counted_lost(stamp) and not jumped:
+            # its frame is counted (image_lost) already: it came after a newer image, or more than
+            # IMAGE_LOST_AFTER_S after its camera_info
+            if backward:  # still one of a run that may be a jump back
+                self.backward_stamps = run
             self.health.note('late_images', 'an image came after it was counted lost: ignored')
             return
+        self.health.count('frames_in')
         if (
             self.pending is not None
         ):  # another image: the waiting one goes first, with what there is
@@ -577,22 +591,21 @@ class ContourNode(Node):
             self.health.note(
                 'no_camera_info', 'image before any camera_info: processed without the size check'
             )
-        if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
+        if backward:
             # one stale image must not cost the learnt background: only a run of them (a bag
             # loop, a clock set back) starts the history anew
-            run = self.backward_stamps
-            if run and stamp <= run[-1]:
-                run.clear()  # not one new timeline: each must be newer than the one before
-            run.append(stamp)
-            if len(run) < self.params['jump_back_frames']:
+            self.backward_stamps = run
+            if not jumped:
+                self.lost.arrived(stamp)
                 self.health.drop(
                     'out_of_order', 'image stamped before the newest processed one: dropped'
                 )
                 return
-            run.clear()
+            self.backward_stamps = []
             self.pipeline = self._new_pipeline()
             self.markers = None
-            self.lost.reset()
+            for _ in self.lost.reset():
+                self._count_lost()
             self._saved_background = None
             self._load_background()
             self.health.warn(
@@ -603,26 +616,25 @@ class ContourNode(Node):
         elif self.last_stamp_ns is not None and stamp == self.last_stamp_ns:
             self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
             return
-        for _ in self.lost.received(stamp):
-            self.health.drop(
-                'image_lost',
-                'camera_info came but its image did not (lost in transport or '
-                'overwritten in a full queue)',
-            )
-        self._count_missing()
         try:
             image = image_message_to_frame(msg) if self.colour else image_message_to_grey(msg)
         except ImageFormatError as exc:
+            self.lost.arrived(stamp)
             self.health.drop(exc.reason, f'bad image: {exc}')
             return
         info = self.camera_info
         if info is not None and (msg.width, msg.height) != (info.width, info.height):
+            self.lost.arrived(stamp)
             self.health.drop(
                 'size_mismatch',
                 f'image {msg.width}x{msg.height} differs from camera_info '
                 f'{info.width}x{info.height}',
             )
             return
+        # taken into the frame history: the counter's clock is the node's
+        for _ in self.lost.received(stamp):
+            self._count_lost()
+        self._count_missing()
         self.backward_stamps.clear()
         previous_ns, self.last_stamp_ns = self.last_stamp_ns, stamp
         if self._waits_for_markers(previous_ns):

@@ -9,6 +9,12 @@ stamp before s whose image did not come is lost for good.  The last images of a
 stream have no newer one after them: an announcement unanswered for long is lost too.
 A frame whose camera_info was lost as well shows only as a gap in the stamps of a
 regular stream: :meth:`LostFrameCounter.missing` counts those.
+
+The counter keeps the node's clock, not the wire's: only an image the node took into its
+frame history (:meth:`LostFrameCounter.received`) tells which announced frames are past.  An
+image it refused or dropped (a bad encoding, out of order) still answers its own announcement
+(:meth:`LostFrameCounter.arrived`) but moves no clock: its stamp may be anything (a fuzzed
+message stamped years ahead would otherwise make every later frame look past, and lost).
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ class LostFrameCounter:
         self._waiting: dict[int, float] = {}  # announced stamp -> monotonic time it came
         self._lost: set[int] = set()  # settled stamps that were counted lost
         self._recent = recent
-        self.newest_received: int | None = None
+        self.newest_received: int | None = None  # the newest image the node took: its clock
         self._newest_announced: int | None = None
         self._intervals: deque[int] = deque(maxlen=PERIODS)
         self._seen: list[int] = []  # stamps of either stream not yet checked for gaps, in order
@@ -49,15 +55,22 @@ class LostFrameCounter:
         if stamp == 0 or stamp in self._settled_set or stamp in self._waiting:
             return []
         self._saw(stamp)
-        if self._newest_announced is None or stamp > self._newest_announced:
+        in_order = self._newest_announced is None or stamp >= self._newest_announced
+        if in_order:
             self._newest_announced = stamp
-        if self.newest_received is not None and stamp < self.newest_received:
+        if in_order and self.newest_received is not None and stamp < self.newest_received:
             self._settle(stamp, lost=True)
             return [stamp]  # a newer image came first: this one's never will
+        # (an announcement older than one before it starts a new timeline, a bag loop or a clock
+        # set back: its image may still come, the node's clock follows once it does)
+        lost = []
         if len(self._waiting) >= self._recent:  # no image for long: the stream is not per frame
-            del self._waiting[min(self._waiting)]
+            oldest = next(iter(self._waiting))  # the longest waiting
+            del self._waiting[oldest]
+            self._settle(oldest, lost=True)
+            lost.append(oldest)
         self._waiting[stamp] = time.monotonic()
-        return []
+        return lost
 
     def missing(self) -> int:
         """Return how many more frames of a regular stream came neither as image nor camera_info.
@@ -89,7 +102,7 @@ class LostFrameCounter:
             bisect.insort(self._seen, stamp)
 
     def received(self, stamp: int) -> list[int]:
-        """Return an image arrived.
+        """Return the node took an image into its frame history (its clock is now at least there).
 
         The announced stamps before it that had none, oldest first (now lost).
         """
@@ -104,17 +117,33 @@ class LostFrameCounter:
             self._settle(s, lost=True)
         return lost
 
+    def arrived(self, stamp: int) -> None:
+        """Note an image the node did not take into its frame history (refused, out of order).
+
+        It answers its own announcement (the node counts it under its own reason) but moves no
+        clock and shows no other frame lost: its stamp is not trusted.
+        """
+        if stamp == 0:
+            return
+        self._waiting.pop(stamp, None)
+        self._settle(stamp)
+        self._saw(stamp)
+
     def expired(self, age: float, now: float | None = None) -> list[int]:
         """Return the announced stamps whose image has not come within ``age`` seconds (now lost).
 
         Oldest first.
         """
         now = time.monotonic() if now is None else now
-        lost = sorted(s for s, came in self._waiting.items() if now - came > age)
+        lost = []
+        for s, came in self._waiting.items():  # in the order they came
+            if now - came <= age:
+                break
+            lost.append(s)
         for s in lost:
             del self._waiting[s]
             self._settle(s, lost=True)
-        return lost
+        return sorted(lost)
 
     def counted_lost(self, stamp: int) -> bool:
         """Return whether ``stamp`` was already counted lost (its image came too late)."""
@@ -136,6 +165,18 @@ class LostFrameCounter:
         if lost:
             self._lost.add(stamp)
 
-    def reset(self) -> None:
-        """Forget everything (time jump backwards)."""
+    def reset(self) -> list[int]:
+        """Start a new timeline (the node's clock jumped back); return the stamps now lost.
+
+        Those are the announcements of the old timeline newer than its last image, which no image
+        will answer; announcements before it belong to the new timeline and keep waiting (any of
+        the old one's there were counted lost already).  The rest is forgotten, so that the new
+        timeline may repeat the old one's stamps (a bag played again).
+        """
+        clock, waiting = self.newest_received, self._waiting
         self.__init__(self._recent)
+        lost = sorted(s for s in waiting if clock is not None and s >= clock)
+        for s in lost:
+            del waiting[s]
+        self._waiting = waiting
+        return lost
