@@ -318,8 +318,9 @@ class ContourNode(Node):
             history=HistoryPolicy.KEEP_LAST,
             depth=self.params['image_queue_depth'],
         )
-        self.create_subscription(
-            Image, 'image_raw', self.health.guard(self._on_image, 'image callback'), image_qos
+        self._image_callback = self.health.guard(self._on_image, 'image callback')
+        self._image_sub = self.create_subscription(
+            Image, 'image_raw', self._image_callback, image_qos
         )
         info_qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE
@@ -328,7 +329,7 @@ class ContourNode(Node):
             history=HistoryPolicy.KEEP_LAST,
             depth=INFO_QUEUE_DEPTH,
         )
-        self.create_subscription(
+        self._info_sub = self.create_subscription(
             CameraInfo,
             'camera_info',
             self.health.guard(self._on_camera_info, 'camera_info callback'),
@@ -552,7 +553,30 @@ class ContourNode(Node):
                 'camera_info never came (lost in transport or overwritten in a full queue)',
             )
 
+    def _take_camera_infos(self) -> None:
+        """Take every camera_info waiting in its queue now.
+
+        The single-threaded executor takes one message of each subscription per round, so behind
+        images slower than their rate the camera_info queue would fill and overwrite its oldest
+        announcements: a frame whose image was lost too would be counted nowhere.
+        """
+        for _ in range(INFO_QUEUE_DEPTH):
+            msg = take_message(self._info_sub)
+            if msg is None:
+                return
+            self._on_camera_info(msg)
+
     def _count_expired(self) -> None:
+        """Count the announcements no image answered within IMAGE_LOST_AFTER_S as image_lost.
+
+        The images already in the queue are taken first: one that waits there is not lost.
+        """
+        self._take_camera_infos()
+        for _ in range(self.params['image_queue_depth']):
+            msg = take_message(self._image_sub)
+            if msg is None:
+                break
+            self._image_callback(msg)
         for _ in self.lost.expired(IMAGE_LOST_AFTER_S):
             self._count_lost(f' within {IMAGE_LOST_AFTER_S:g} s')
 
@@ -565,6 +589,7 @@ class ContourNode(Node):
         return [*run, stamp] if run and stamp > run[-1] else [stamp]
 
     def _on_image(self, msg: Image) -> None:
+        self._take_camera_infos()  # every announcement up to this image, before it is judged
         stamp = stamp_to_ns(msg.header.stamp)
         backward = self.last_stamp_ns is not None and stamp < self.last_stamp_ns
         run = self._backward_run(stamp) if backward else []
@@ -701,6 +726,16 @@ class ContourNode(Node):
             mask.step = mask.width
             mask.data = (result.mask.astype(np.uint8) * 255).tobytes()
             self.pub_mask.publish(mask)
+
+
+def take_message(subscription):
+    """Return the next message waiting in ``subscription``'s queue, or None.
+
+    What the executor does before it runs the callback.
+    """
+    with subscription.handle:
+        taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+    return None if taken is None else taken[0]
 
 
 def main(args: list[str] | None = None) -> int:
