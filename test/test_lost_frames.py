@@ -1,5 +1,6 @@
 """LostFrameCounter: images that never arrived are found from their camera_info, each just once."""
 
+import random
 import time
 
 from memo_ros.ros.lost_frames import LostFrameCounter
@@ -93,3 +94,40 @@ def test_announcements_going_back_start_a_new_timeline_and_its_frames_are_counte
     assert c.received(3) == []
     assert c.announced(4) == [] and c.announced(5) == [] and c.received(5) == [4]
     assert not any(c.counted_lost(s) for s in (1, 2, 3, 5))
+
+
+def _both_streams(c: LostFrameCounter, stamps) -> int:
+    """Announce and receive each stamp; return the frames_missing counted."""
+    missing = 0
+    for stamp in stamps:
+        assert c.announced(stamp) == [] and c.received(stamp) == []
+        missing += c.missing()
+    return missing
+
+
+def test_a_stall_or_jitter_of_the_stamps_is_no_missing_frame():
+    period = 33_333_333
+    rng = random.Random(0)
+    # a player stamping with the wall clock, regular within 0.3 ms, stalling 20 ms now and then
+    stamps, stamp = [], 0
+    for k in range(1, 300):
+        stamp += period + rng.randint(-300_000, 300_000) + (20_000_000 if k % 40 == 0 else 0)
+        stamps.append(stamp)
+    assert _both_streams(LostFrameCounter(), stamps) == 0
+    # jitter of 4 ms (12 %): a stream too irregular for a gap to tell frames, even a real one
+    stamps = [k * period + rng.randint(-4_000_000, 4_000_000) for k in range(1, 300) if k != 150]
+    assert _both_streams(LostFrameCounter(), stamps) == 0
+
+
+def test_a_regular_stream_with_a_stall_still_counts_its_whole_missing_periods():
+    period = 33_333_333
+    stamps = [k * period + (k % 3) * 100_000 for k in range(1, 200) if k not in (60, 120, 121)]
+    stamps = [s + 17_000_000 if s > 90 * period else s for s in stamps]  # one stall at 90
+    assert _both_streams(LostFrameCounter(), stamps) == 3
+
+
+def test_stamps_kept_for_the_gap_search_stay_bounded_when_one_stream_runs_ahead():
+    c = LostFrameCounter(recent=16)
+    for stamp in range(1, 5000):
+        c.announced(stamp)  # no image is ever taken: nothing is checked
+    assert len(c._unchecked) <= 32 and len(c._unchecked_set) <= 32

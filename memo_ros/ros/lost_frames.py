@@ -19,13 +19,16 @@ message stamped years ahead would otherwise make every later frame look past, an
 
 from __future__ import annotations
 
-import bisect
 from collections import deque
+import heapq
 import time
 
 RECENT = 512  # stamps remembered on each side: far more than any queue holds
-PERIODS = 16  # announcement intervals the frame period is the median of
+PERIODS = 16  # intervals between stamps the frame period is the median of
 GAP = 1.5  # an interval this many periods long or longer has frames missing in it
+REGULAR = 0.1  # a stream is regular when its last PERIODS intervals and a gap are whole periods
+# within this fraction of one: only there does a gap tell frames (a player's or a software
+# clock's jitter, a stall, would otherwise count frames that were never sent)
 
 
 class LostFrameCounter:
@@ -43,7 +46,8 @@ class LostFrameCounter:
         self.newest_received: int | None = None  # the newest image the node took: its clock
         self._newest_announced: int | None = None
         self._intervals: deque[int] = deque(maxlen=PERIODS)
-        self._seen: list[int] = []  # stamps of either stream not yet checked for gaps, in order
+        self._unchecked: list[int] = []  # heap: stamps of either stream not yet checked for gaps
+        self._unchecked_set: set[int] = set()
         self._checked: int | None = None  # the newest stamp checked for a gap before it
 
     def announced(self, stamp: int) -> list[int]:
@@ -75,31 +79,54 @@ class LostFrameCounter:
     def missing(self) -> int:
         """Return how many more frames of a regular stream came neither as image nor camera_info.
 
-        Both streams have passed every stamp up to the older of their newest: there, consecutive
-        stamps of either stream more than ``GAP`` frame periods apart (the period being the median
-        of the last intervals) have frames missing between them.  0 until the period is known.
+        Both streams have passed every stamp up to the older of their newest (the images' as the
+        node took them): there, consecutive stamps of either stream a whole number (2 or more) of
+        frame periods apart have frames missing between them, the period being the median of the
+        last intervals, all within ``REGULAR`` of it.  0 until the period is known, and while the
+        stream is not regular.
         """
         if self._newest_announced is None or self.newest_received is None:
             return 0
         mark = min(self._newest_announced, self.newest_received)
         count = 0
-        while self._seen and self._seen[0] <= mark:
-            stamp = self._seen.pop(0)
+        while self._unchecked and self._unchecked[0] <= mark:
+            stamp = heapq.heappop(self._unchecked)
+            self._unchecked_set.discard(stamp)
             if self._checked is not None:
-                interval = stamp - self._checked
-                known = len(self._intervals) == PERIODS
-                period = sorted(self._intervals)[PERIODS // 2] if known else 0
-                if known and interval >= GAP * period:
-                    count += max(int(round(interval / period)) - 1, 0)
-                else:
-                    self._intervals.append(interval)
+                count += self._frames_within(stamp - self._checked)
             self._checked = stamp
         return count
 
+    def _frames_within(self, interval: int) -> int:
+        """Return the frames missing within ``interval`` (ns) between two stamps that came."""
+        period = self._period()
+        if period and interval >= GAP * period:
+            periods = round(interval / period)
+            if abs(interval - periods * period) <= REGULAR * period:
+                return periods - 1
+        self._intervals.append(interval)
+        return 0
+
+    def _period(self) -> int | None:
+        """Return the frame period: the median of the last intervals, if all are within REGULAR."""
+        if len(self._intervals) < PERIODS:
+            return None
+        ordered = sorted(self._intervals)
+        median = ordered[PERIODS // 2]
+        spread = max(ordered[-1] - median, median - ordered[0])
+        return median if spread <= REGULAR * median else None
+
     def _saw(self, stamp: int) -> None:
-        """Remember a stamp of either stream for :meth:`missing`."""
-        if (self._checked is None or stamp > self._checked) and stamp not in self._seen:
-            bisect.insort(self._seen, stamp)
+        """Remember a stamp of either stream for :meth:`missing` (a bounded number of them)."""
+        if (self._checked is not None and stamp <= self._checked) or stamp in self._unchecked_set:
+            return
+        if len(self._unchecked) >= 2 * self._recent:  # far ahead of one stream: search anew
+            self._unchecked.clear()
+            self._unchecked_set.clear()
+            self._checked = None
+            self._intervals.clear()
+        heapq.heappush(self._unchecked, stamp)
+        self._unchecked_set.add(stamp)
 
     def received(self, stamp: int) -> list[int]:
         """Return the node took an image into its frame history (its clock is now at least there).
