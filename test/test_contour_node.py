@@ -191,12 +191,12 @@ def _background_info(sec: int) -> CameraInfo:
 
 
 def _run_background_node(
-    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None
+    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None, before=()
 ) -> tuple[dict, list]:
     """Start a 64x48 contour_node, feed it frames (None: a lost image) with a camera_info each.
 
-    Stamped ``first_sec`` + k, or ``stamps`` (seconds).  Stop it; return its /diagnostics values
-    and its contour clouds.
+    Stamped ``first_sec`` + k, or ``stamps`` (seconds); the messages ``before`` (Image or
+    CameraInfo) go first.  Stop it; return its /diagnostics values and its contour clouds.
     """
     stamps = stamps or [first_sec + k for k in range(len(frames))]
     process = _start_node(ros_env, 'cam_bg', *params)
@@ -219,6 +219,9 @@ def _run_background_node(
                 executor.spin_once(timeout_sec=0.1)
                 assert time.monotonic() < deadline, 'contour_node did not appear'
             time.sleep(1.0)
+            for msg in before:
+                (image_pub if isinstance(msg, Image) else info_pub).publish(msg)
+                executor.spin_once(timeout_sec=0.15)
             for k, pixels in enumerate(frames):
                 info_pub.publish(_background_info(stamps[k]))
                 if pixels is not None:
@@ -314,6 +317,24 @@ def test_one_image_stamped_in_the_past_is_counted_and_changes_no_contour(ros_env
     assert len(clouds) == len(wanted) == len(plain)  # one cloud per processed image
     for got, want in zip(clouds[-len(walking) :], wanted[-len(walking) :]):
         assert len(got) > 20 and np.array_equal(got, want)
+
+
+def test_a_refused_image_stamped_years_ahead_leaves_every_later_frame_processed(ros_env):
+    # the fuzz test's good bag after the fuzzing: a bad image stamped in the future must not make
+    # every later frame look past (its camera_info counted lost at once, its image ignored late)
+    empty, person = _scene()
+    future = 1_900_000_000
+    bad = _background_frame(empty, future)
+    bad.encoding = 'yuv422'  # refused: unsupported_encoding
+    frames = [empty, empty, empty, person, person]
+    values, contours = _run_background_node(
+        ros_env, ('background_frames:=3', 'min_region_area:=20'), frames, 1,
+        before=[_background_info(future), bad],
+    )  # fmt: skip
+    assert int(values['dropped.unsupported_encoding']) == 1, values
+    assert int(values['processed']) == len(frames) and 'late_images' not in values, values
+    assert 'dropped.image_lost' not in values, values  # the bad image answered its camera_info
+    assert len(contours) == len(frames)
 
 
 def test_a_background_track_that_is_not_a_bag_stops_the_node_with_one_line(ros_env, tmp_path):
@@ -429,3 +450,56 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
     finally:
         process.send_signal(2)
         process.communicate(timeout=15)
+
+
+def test_every_frame_of_a_300_hz_burst_is_processed_or_counted_once(ros_env):
+    """300 VGA frames at 300 Hz: far more than a node takes, from a publisher whose queue drops.
+
+    Each is processed, or counted as image_lost (its camera_info came) or frames_missing (a gap
+    in the stamps of both streams).  Only a last frame of which nothing came cannot be known.
+    """
+    frames = 300
+    process = _start_node(ros_env, 'cam_burst', 'background_frames:=3')
+    values: dict[str, str] = {}
+    try:
+        with ros_session('burst', ros_env.domain_id) as (node, executor):
+            image_pub = node.create_publisher(Image, '/cam_burst/image_raw', 10)
+            info_pub = node.create_publisher(CameraInfo, '/cam_burst/camera_info', 10)
+
+            def on_diagnostics(msg: DiagnosticArray) -> None:
+                for status in msg.status:
+                    if status.hardware_id == 'cam_burst':
+                        values.update({kv.key: kv.value for kv in status.values})
+
+            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+            deadline = time.monotonic() + 15
+            while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+                executor.spin_once(timeout_sec=0.1)
+                assert time.monotonic() < deadline, 'contour_node did not appear'
+            time.sleep(1.0)
+            empty = np.random.default_rng(0).integers(90, 110, (480, 640), dtype=np.uint8)
+            start = time.monotonic()
+            for k in range(frames):
+                pixels = empty.copy()
+                pixels[100:300, 200 + k % 100 : 260 + k % 100] = 200
+                image = Image(encoding='mono8', width=640, height=480, step=640)
+                image.data = pixels.tobytes()
+                info = CameraInfo(width=640, height=480, distortion_model='plumb_bob')
+                info.k = [500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]
+                info.d = [0.0] * 5
+                for msg in (image, info):
+                    msg.header.stamp.sec = 100 + k // 300
+                    msg.header.stamp.nanosec = (k % 300) * 3_333_333
+                info_pub.publish(info)
+                image_pub.publish(image)
+                time.sleep(max(start + (k + 1) / 300 - time.monotonic(), 0.0))
+            end = time.monotonic() + 8  # the lost-image timer (2 s) and two diagnostics periods
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.1)
+    finally:
+        process.send_signal(2)
+        process.communicate(timeout=15)
+    processed, dropped = int(values['processed']), int(values.get('dropped.total', 0))
+    print(f'{frames} frames at 300 Hz: {processed} processed, dropped {values}')
+    assert dropped > 0, values  # the burst is meant to overrun the node
+    assert frames - 1 <= processed + dropped <= frames, values

@@ -221,6 +221,7 @@ PARAMS = (
         1000,
     ),
 )
+IMAGE_LOST_AFTER_S = 2.0  # wall time after its camera_info by which an image counts as lost
 INFO_QUEUE_DEPTH = 100  # camera_info is small: a deep queue keeps every frame's announcement
 
 
@@ -317,8 +318,9 @@ class ContourNode(Node):
             history=HistoryPolicy.KEEP_LAST,
             depth=self.params['image_queue_depth'],
         )
-        self.create_subscription(
-            Image, 'image_raw', self.health.guard(self._on_image, 'image callback'), image_qos
+        self._image_callback = self.health.guard(self._on_image, 'image callback')
+        self._image_sub = self.create_subscription(
+            Image, 'image_raw', self._image_callback, image_qos
         )
         info_qos = QoSProfile(
             reliability=ReliabilityPolicy.RELIABLE
@@ -327,13 +329,17 @@ class ContourNode(Node):
             history=HistoryPolicy.KEEP_LAST,
             depth=INFO_QUEUE_DEPTH,
         )
-        self.create_subscription(
+        self._info_sub = self.create_subscription(
             CameraInfo,
             'camera_info',
             self.health.guard(self._on_camera_info, 'camera_info callback'),
             info_qos,
         )
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
+        # the last images of a burst have no newer image to show they were lost
+        self.create_timer(
+            IMAGE_LOST_AFTER_S / 2, self.health.guard(self._count_expired, 'lost image timer')
+        )
         self.pub_edges = self.create_publisher(PointCloud2, 'edges', 10)
         self.pub_box = self.create_publisher(PolygonStamped, 'person_box', 10)
         self.pub_mask = self.create_publisher(Image, 'debug/mask', 2)
@@ -529,15 +535,73 @@ class ContourNode(Node):
             )
         self.camera_info = msg
         for _ in self.lost.announced(stamp_to_ns(msg.header.stamp)):
+            self._count_lost()
+        self._count_missing()
+
+    def _count_lost(self, detail: str = '') -> None:
+        self.health.drop(
+            'image_lost',
+            f'camera_info came but its image did not{detail} (lost in transport or '
+            'overwritten in a full queue)',
+        )
+
+    def _count_missing(self) -> None:
+        for _ in range(self.lost.missing()):
             self.health.drop(
-                'image_lost',
-                'camera_info came but its image did not (lost in transport or '
-                'overwritten in a full queue)',
+                'frames_missing',
+                'the stamps of this camera skipped frame periods: frames whose image and '
+                'camera_info never came (lost in transport or overwritten in a full queue)',
             )
 
+    def _take_camera_infos(self) -> None:
+        """Take every camera_info waiting in its queue now.
+
+        The single-threaded executor takes one message of each subscription per round, so behind
+        images slower than their rate the camera_info queue would fill and overwrite its oldest
+        announcements: a frame whose image was lost too would be counted nowhere.
+        """
+        for _ in range(INFO_QUEUE_DEPTH):
+            msg = take_message(self._info_sub)
+            if msg is None:
+                return
+            self._on_camera_info(msg)
+
+    def _count_expired(self) -> None:
+        """Count the announcements no image answered within IMAGE_LOST_AFTER_S as image_lost.
+
+        The images already in the queue are taken first: one that waits there is not lost.
+        """
+        self._take_camera_infos()
+        for _ in range(self.params['image_queue_depth']):
+            msg = take_message(self._image_sub)
+            if msg is None:
+                break
+            self._image_callback(msg)
+        for _ in self.lost.expired(IMAGE_LOST_AFTER_S):
+            self._count_lost(f' within {IMAGE_LOST_AFTER_S:g} s')
+
+    def _backward_run(self, stamp: int) -> list[int]:
+        """Return the run of images stamped before the newest processed one, ending with this one.
+
+        Each must be newer than the one before it to make one new timeline.
+        """
+        run = self.backward_stamps
+        return [*run, stamp] if run and stamp > run[-1] else [stamp]
+
     def _on_image(self, msg: Image) -> None:
-        self.health.count('frames_in')
+        self._take_camera_infos()  # every announcement up to this image, before it is judged
         stamp = stamp_to_ns(msg.header.stamp)
+        backward = self.last_stamp_ns is not None and stamp < self.last_stamp_ns
+        run = self._backward_run(stamp) if backward else []
+        jumped = len(run) >= self.params['jump_back_frames']
+        if self.lost.counted_lost(stamp) and not jumped:
+            # its frame is counted (image_lost) already: it came after a newer image, or more than
+            # IMAGE_LOST_AFTER_S after its camera_info
+            if backward:  # still one of a run that may be a jump back
+                self.backward_stamps = run
+            self.health.note('late_images', 'an image came after it was counted lost: ignored')
+            return
+        self.health.count('frames_in')
         if (
             self.pending is not None
         ):  # another image: the waiting one goes first, with what there is
@@ -552,22 +616,21 @@ class ContourNode(Node):
             self.health.note(
                 'no_camera_info', 'image before any camera_info: processed without the size check'
             )
-        if self.last_stamp_ns is not None and stamp < self.last_stamp_ns:
+        if backward:
             # one stale image must not cost the learnt background: only a run of them (a bag
             # loop, a clock set back) starts the history anew
-            run = self.backward_stamps
-            if run and stamp <= run[-1]:
-                run.clear()  # not one new timeline: each must be newer than the one before
-            run.append(stamp)
-            if len(run) < self.params['jump_back_frames']:
+            self.backward_stamps = run
+            if not jumped:
+                self.lost.arrived(stamp)
                 self.health.drop(
                     'out_of_order', 'image stamped before the newest processed one: dropped'
                 )
                 return
-            run.clear()
+            self.backward_stamps = []
             self.pipeline = self._new_pipeline()
             self.markers = None
-            self.lost.reset()
+            for _ in self.lost.reset():
+                self._count_lost()
             self._saved_background = None
             self._load_background()
             self.health.warn(
@@ -578,25 +641,25 @@ class ContourNode(Node):
         elif self.last_stamp_ns is not None and stamp == self.last_stamp_ns:
             self.health.drop('duplicate_stamp', 'image with the same stamp as the previous one')
             return
-        for _ in self.lost.received(stamp):
-            self.health.drop(
-                'image_lost',
-                'camera_info came but its image did not (lost in transport or '
-                'overwritten in a full queue)',
-            )
         try:
             image = image_message_to_frame(msg) if self.colour else image_message_to_grey(msg)
         except ImageFormatError as exc:
+            self.lost.arrived(stamp)
             self.health.drop(exc.reason, f'bad image: {exc}')
             return
         info = self.camera_info
         if info is not None and (msg.width, msg.height) != (info.width, info.height):
+            self.lost.arrived(stamp)
             self.health.drop(
                 'size_mismatch',
                 f'image {msg.width}x{msg.height} differs from camera_info '
                 f'{info.width}x{info.height}',
             )
             return
+        # taken into the frame history: the counter's clock is the node's
+        for _ in self.lost.received(stamp):
+            self._count_lost()
+        self._count_missing()
         self.backward_stamps.clear()
         previous_ns, self.last_stamp_ns = self.last_stamp_ns, stamp
         if self._waits_for_markers(previous_ns):
@@ -663,6 +726,16 @@ class ContourNode(Node):
             mask.step = mask.width
             mask.data = (result.mask.astype(np.uint8) * 255).tobytes()
             self.pub_mask.publish(mask)
+
+
+def take_message(subscription):
+    """Return the next message waiting in ``subscription``'s queue, or None.
+
+    What the executor does before it runs the callback.
+    """
+    with subscription.handle:
+        taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+    return None if taken is None else taken[0]
 
 
 def main(args: list[str] | None = None) -> int:
