@@ -12,6 +12,8 @@ import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from memo_ros.ros.bagio import read_messages, stamp_to_ns
@@ -212,18 +214,12 @@ def _background_info(sec: int) -> CameraInfo:
 
 
 def _run_background_node(
-    ros_env,
-    params,
-    frames,
-    first_sec: int,
-    stamps: list[int] | None = None,
-    edges: list | None = None,
+    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None
 ) -> tuple[dict, list]:
     """Start a 64x48 contour_node, feed it frames (None: a lost image) with a camera_info each.
 
     Stamped ``first_sec`` + k, or ``stamps`` (seconds).  Stop it; return its /diagnostics values
-    and its contour clouds.  With ``edges`` (a list) the feeder subscribes to the node's edges
-    and appends every cloud to it.
+    and its contour clouds.
     """
     stamps = stamps or [first_sec + k for k in range(len(frames))]
     process = _start_node(ros_env, 'cam_bg', *params)
@@ -234,8 +230,6 @@ def _run_background_node(
             image_pub = node.create_publisher(Image, '/cam_bg/image_raw', 10)
             info_pub = node.create_publisher(CameraInfo, '/cam_bg/camera_info', 10)
             node.create_subscription(PointCloud2, '/cam_bg/contours', contours.append, 100)
-            if edges is not None:
-                node.create_subscription(PointCloud2, '/cam_bg/edges', edges.append, 100)
 
             def on_diagnostics(msg: DiagnosticArray) -> None:
                 for status in msg.status:
@@ -390,18 +384,44 @@ def test_edge_lines_follow_a_subscriber_that_comes_late_and_the_edges_parameter(
             assert all(len(edges[s]) >= 4 for s in sent[later:])  # the person's four sides
             spin(2.5)  # a report after the last frame
             assert values['edge_lines'].isdigit() and int(values['processed']) == len(sent), values
+            # edges: never, set at runtime: nothing on edges for the subscriber from the next
+            # frame on, and the learnt background is kept (contours at once, no learning anew)
+            client = node.create_client(SetParameters, '/cam_edge/contour_node/set_parameters')
+            assert client.wait_for_service(timeout_sec=10)
+            future = client.call_async(
+                SetParameters.Request(
+                    parameters=[Parameter('edges', value='never').to_parameter_msg()]
+                )
+            )
+            executor.spin_until_future_complete(future, timeout_sec=10)
+            assert future.result().results[0].successful
+            contours: dict[int, np.ndarray] = {}
+            node.create_subscription(
+                PointCloud2,
+                '/cam_edge/contours',
+                lambda m: contours.setdefault(stamp_to_ns(m.header.stamp), pointcloud_to_array(m)),
+                100,
+            )
+            spin(1.0)
+            silent = len(sent)
+            deadline = time.monotonic() + 15
+            while not contours:
+                feed(person)
+                assert time.monotonic() < deadline, 'no contours after the switch'
+            for _ in range(2):
+                feed(person)
+            spin(10.0, lambda: set(sent[-2:]) <= set(contours))
+            spin(2.5)
+            assert all(len(contours[s]) > 20 for s in sent[-2:])
+            assert not set(edges) & set(sent[silent:]), 'edge lines after edges:=never'
+            assert values['edge_lines'] == 'off (edges: never)', values
+            assert int(values['warming_up']) == 3 and 'reconfigured' not in values, values
     finally:
         process.send_signal(2)
         process.communicate(timeout=15)
 
-    # edges: never: nothing on edges for a subscriber; always: computed with nobody listening
+    # edges: always: computed with nobody listening
     params = ('background_frames:=3', 'min_region_area:=20')
-    clouds: list = []
-    values, contours = _run_background_node(
-        ros_env, (*params, 'edges:=never'), [empty, empty, empty, person], 1, edges=clouds
-    )
-    assert clouds == [] and values['edge_lines'] == 'off (edges: never)', values
-    assert int(values['processed']) == 4 and len(contours) == 4, values
     values, _ = _run_background_node(
         ros_env, (*params, 'edges:=always'), [empty, empty, empty, person], 1
     )

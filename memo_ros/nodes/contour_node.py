@@ -371,6 +371,10 @@ class ContourNode(Node):
         return self.params['segmenter'] == 'sequence'
 
     def _on_parameters_set(self) -> None:
+        if pipeline_settings(self.params) == self.pipeline.settings:
+            # edges, the debug mask, the tracked region's and the time-jump parameters are read at
+            # every frame: switching them must not cost the learnt background
+            return
         self.pipeline = self._new_pipeline()
         self._saved_background = None
         self._load_background()
