@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'suite',
         choices=SUITES,
         help='what to measure: foundation = renderer and simulator; '
-        'contours = the contour pipeline per 640x480 frame, one OpenCV thread; '
+        'contours = the contour pipeline per 640x480 frame, one OpenCV thread, with and '
+        'without edge lines; '
         'contour-node = the contour_node process fed at 30 and 60 Hz over DDS; '
         'selector = camera assignment per frame, 14 parts x 3 cameras (--repeat: passes over '
         'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
