@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 import sys
+import time
 
 from geometry_msgs.msg import Point32, PolygonStamped
 import numpy as np
@@ -185,8 +186,9 @@ PARAMS = (
         'edges',
         'auto',
         "Rohr's edge lines on edges (only the walker reads them): auto computes and publishes "
-        'them only while edges has a subscriber, asked at every frame (one that matched late '
-        'gets them from its next frame on), always for every frame, never (edges stays silent)',
+        'them only while edges has a subscriber, asked before and after each frame is processed '
+        '(one that matched late gets them with every frame published from then on), always for '
+        'every frame, never (edges stays silent)',
         choices=('auto', 'always', 'never'),
     ),
     Param(
@@ -655,6 +657,12 @@ class ContourNode(Node):
         mode = self.params['edges']
         with_edges = edges_wanted(mode, self.pub_edges.get_subscription_count())
         result = self.pipeline.process(image, edges=with_edges)
+        if not with_edges and edges_wanted(mode, self.pub_edges.get_subscription_count()):
+            # matched while this frame was processed: its edge lines go out with it all the same
+            start = time.perf_counter()
+            result.edges = self.pipeline.edge_lines(image, result)
+            result.timings['edges'] = time.perf_counter() - start
+            with_edges = True
         if (
             self.pipeline.background is not None
             and self.pipeline.background is not self._saved_background
