@@ -11,6 +11,9 @@ import time
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
+import pytest
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from memo_ros.ros.bagio import read_messages, stamp_to_ns
@@ -91,6 +94,26 @@ def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
     )
     boxes = [m.message for m in read_messages(out, ['/cam_street/person_box'])]
     assert len(boxes[-1].polygon.points) == 4
+    # the recorder subscribes to edges (edges: auto): edge lines with every frame's contours
+    edges = {
+        stamp_to_ns(m.message.header.stamp): pointcloud_to_array(m.message)
+        for m in read_messages(out, ['/cam_street/edges'])
+    }
+    assert sorted(edges) == stamps
+    assert all(len(edges[s]) > 0 for s in images[7:])
+
+
+def test_edge_lines_are_wanted_in_auto_only_for_a_subscriber():
+    from memo_ros.nodes.contour_node import PARAMS, edges_wanted
+
+    assert [edges_wanted('auto', n) for n in (0, 1, 3)] == [False, True, True]
+    assert [edges_wanted('always', n) for n in (0, 1)] == [True, True]
+    assert [edges_wanted('never', n) for n in (0, 1)] == [False, False]
+    with pytest.raises(ValueError, match='sometimes'):
+        edges_wanted('sometimes', 1)
+    (param,) = [p for p in PARAMS if p.name == 'edges']
+    assert param.default == 'auto' and param.choices == ('auto', 'always', 'never')
+    assert param.check('sometimes') and param.check('always') is None
 
 
 def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros_env):
@@ -294,6 +317,118 @@ def test_a_background_with_the_person_in_it_is_neither_saved_nor_loaded(ros_env,
     assert int(values['background_refused']) == 1, values
     assert int(values['warming_up']) == 3, values
     assert background_file.with_name(background_file.name + '.yaml').is_file()  # relearnt, saved
+
+
+def test_edge_lines_follow_a_subscriber_that_comes_late_and_the_edges_parameter(ros_env):
+    empty, person = _scene()
+    process = _start_node(ros_env, 'cam_edge', 'background_frames:=3', 'min_region_area:=20')
+    values: dict[str, str] = {}
+    edges: dict[int, np.ndarray] = {}
+    try:
+        with ros_session('edges_feeder', ros_env.domain_id) as (node, executor):
+            image_pub = node.create_publisher(Image, '/cam_edge/image_raw', 10)
+            info_pub = node.create_publisher(CameraInfo, '/cam_edge/camera_info', 10)
+
+            def on_diagnostics(msg: DiagnosticArray) -> None:
+                for status in msg.status:
+                    if status.hardware_id == 'cam_edge':
+                        values.update({kv.key: kv.value for kv in status.values})
+
+            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+
+            def spin(seconds: float, until=lambda: False) -> None:
+                end = time.monotonic() + seconds
+                while time.monotonic() < end and not until():
+                    executor.spin_once(timeout_sec=0.05)
+
+            deadline = time.monotonic() + 15
+            while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
+                spin(0.1)
+                assert time.monotonic() < deadline, 'contour_node did not appear'
+            spin(1.0)
+            sent: list[int] = []
+
+            def feed(pixels: np.ndarray) -> None:
+                sec = len(sent) + 1
+                info_pub.publish(_background_info(sec))
+                image_pub.publish(_background_frame(pixels, sec))
+                sent.append(sec * 1_000_000_000)
+                spin(0.15)
+
+            # nobody subscribes to edges: none computed, frames counted as ever
+            for pixels in (empty, empty, empty, person, person):
+                feed(pixels)
+            spin(
+                10.0,
+                lambda: (
+                    int(values.get('processed', 0)) == 5
+                    and values.get('contour_points', '0') != '0'
+                ),
+            )
+            assert values.get('edge_lines') == 'off (no subscriber)', values
+            # a subscriber comes: from the first frame its subscription is matched on, every frame
+            # brings its edge lines
+            node.create_subscription(
+                PointCloud2,
+                '/cam_edge/edges',
+                lambda m: edges.setdefault(stamp_to_ns(m.header.stamp), pointcloud_to_array(m)),
+                100,
+            )
+            deadline = time.monotonic() + 15
+            while not edges:
+                feed(person)
+                assert time.monotonic() < deadline, 'no edge lines for the new subscriber'
+            first = min(edges)
+            later = len(sent)
+            for _ in range(3):
+                feed(person)
+            spin(10.0, lambda: {s for s in sent if s >= first} <= set(edges))
+            assert set(edges) == {s for s in sent if s >= first}
+            assert all(len(edges[s]) >= 4 for s in sent[later:])  # the person's four sides
+            spin(2.5)  # a report after the last frame
+            assert values['edge_lines'].isdigit() and int(values['processed']) == len(sent), values
+            # edges: never, set at runtime: nothing on edges for the subscriber from the next
+            # frame on, and the learnt background is kept (contours at once, no learning anew)
+            client = node.create_client(SetParameters, '/cam_edge/contour_node/set_parameters')
+            assert client.wait_for_service(timeout_sec=10)
+            future = client.call_async(
+                SetParameters.Request(
+                    parameters=[Parameter('edges', value='never').to_parameter_msg()]
+                )
+            )
+            executor.spin_until_future_complete(future, timeout_sec=10)
+            assert future.result().results[0].successful
+            contours: dict[int, np.ndarray] = {}
+            node.create_subscription(
+                PointCloud2,
+                '/cam_edge/contours',
+                lambda m: contours.setdefault(stamp_to_ns(m.header.stamp), pointcloud_to_array(m)),
+                100,
+            )
+            spin(1.0)
+            silent = len(sent)
+            deadline = time.monotonic() + 15
+            while not contours:
+                feed(person)
+                assert time.monotonic() < deadline, 'no contours after the switch'
+            for _ in range(2):
+                feed(person)
+            spin(10.0, lambda: set(sent[-2:]) <= set(contours))
+            spin(2.5)
+            assert all(len(contours[s]) > 20 for s in sent[-2:])
+            assert not set(edges) & set(sent[silent:]), 'edge lines after edges:=never'
+            assert values['edge_lines'] == 'off (edges: never)', values
+            assert int(values['warming_up']) == 3 and 'reconfigured' not in values, values
+    finally:
+        process.send_signal(2)
+        process.communicate(timeout=15)
+
+    # edges: always: computed with nobody listening
+    params = ('background_frames:=3', 'min_region_area:=20')
+    values, _ = _run_background_node(
+        ros_env, (*params, 'edges:=always'), [empty, empty, empty, person], 1
+    )
+    assert int(values['edge_lines']) >= 4 and int(values['processed']) == 4, values
 
 
 def test_one_image_stamped_in_the_past_is_counted_and_changes_no_contour(ros_env):

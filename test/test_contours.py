@@ -155,6 +155,27 @@ def test_edges_stay_in_the_box_and_flat_images_have_none():
 
 
 # ------------------------------------------------------------- pipeline
+def test_edge_lines_of_a_frame_processed_without_them_are_those_processed_with_them():
+    # a node whose edges gained a subscriber while it processed a frame adds them afterwards
+    rng = np.random.default_rng(7)
+    background = (
+        cv2.GaussianBlur(rng.normal(110, 25, (240, 320)), (0, 0), 2).clip(0, 255).astype(np.uint8)
+    )
+    frame = background.copy()
+    cv2.ellipse(frame, (160, 120), (30, 70), 0, 0, 360, 230, -1)
+    with_lines, without = (
+        ContourPipeline(segmenter='background', background_frames=2) for _ in '12'
+    )
+    for image in (background, background, frame):
+        wanted = with_lines.process(image, edges=True)
+        skipped = without.process(image, edges=False)
+        assert len(skipped.edges) == 0
+        assert np.array_equal(without.edge_lines(image, skipped), wanted.edges)
+    assert len(wanted.edges) > 0  # the person's frame has lines; the warm-up frames none
+    colour = np.repeat(frame[..., None], 3, axis=2)
+    assert np.array_equal(without.edge_lines(colour, skipped), wanted.edges)
+
+
 def test_pipeline_warms_up_resets_and_reports_every_stage():
     rng = np.random.default_rng(5)
     background = (

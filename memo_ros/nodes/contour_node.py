@@ -2,10 +2,11 @@
 
 Subscribes ``image_raw`` and ``camera_info`` in its namespace and publishes,
 for every accepted frame (header copied from the image): ``contours``
-(PointCloud2: x, y, tx, ty, contour), ``edges`` (PointCloud2: x1, y1, x2, y2,
-magnitude, chain), ``person_box`` (PolygonStamped: the enclosing rectangle's
-four corners in pixels, empty when nobody is seen) and, on request,
-``debug/mask`` (mono8).  The science is memo_ros.core's ContourPipeline.
+(PointCloud2: x, y, tx, ty, contour), ``person_box`` (PolygonStamped: the
+enclosing rectangle's four corners in pixels, empty when nobody is seen),
+``edges`` (PointCloud2: x1, y1, x2, y2, magnitude, chain) while someone
+subscribes to it (the ``edges`` parameter: auto, always, never) and, on
+request, ``debug/mask`` (mono8).  The science is memo_ros.core's ContourPipeline.
 
 With ``keep_regions: tracked`` or the ``sequence`` segmenter it also listens to
 the tracker's ``/memo/markers``: the tracked body projected into this camera
@@ -21,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 import sys
+import time
 
 from geometry_msgs.msg import Point32, PolygonStamped
 import numpy as np
@@ -181,6 +183,15 @@ PARAMS = (
         50.0,
     ),
     Param(
+        'edges',
+        'auto',
+        "Rohr's edge lines on edges (only the walker reads them): auto computes and publishes "
+        'them only while edges has a subscriber, asked before and after each frame is processed '
+        '(one that matched late gets them with every frame published from then on), always for '
+        'every frame, never (edges stays silent)',
+        choices=('auto', 'always', 'never'),
+    ),
+    Param(
         'edge_low',
         30.0,
         'edge detector: low hysteresis threshold (gradient magnitude)',
@@ -234,6 +245,17 @@ class PendingImage:
     stamp: int
     previous_ns: int
     timer: object
+
+
+def edges_wanted(mode: str, subscribers: int) -> bool:
+    """Whether a frame's edge lines are computed and published.
+
+    ``mode`` is the ``edges`` parameter, ``subscribers`` the edges publisher's matched
+    subscriptions now.
+    """
+    if mode not in ('auto', 'always', 'never'):
+        raise ValueError(f'edges={mode!r} is not one of auto, always, never')
+    return subscribers > 0 if mode == 'auto' else mode == 'always'
 
 
 def pipeline_settings(params: dict) -> PipelineSettings:
@@ -357,6 +379,10 @@ class ContourNode(Node):
         return self.params['segmenter'] == 'sequence'
 
     def _on_parameters_set(self) -> None:
+        if pipeline_settings(self.params) == self.pipeline.settings:
+            # edges, the debug mask, the tracked region's and the time-jump parameters are read at
+            # every frame: switching them must not cost the learnt background
+            return
         self.pipeline = self._new_pipeline()
         self._saved_background = None
         self._load_background()
@@ -689,26 +715,40 @@ class ContourNode(Node):
         self.pipeline.set_roi(roi)
         if self.pipeline.background is None and roi is not None and roi.any():
             self._body_seen_while_learning = True  # this background is not of an empty scene
-        # edge lines only for a listener (Rohr's walker, a recorder): the studio's tracker has none
-        listened = self.pub_edges.get_subscription_count() > 0
-        result = self.pipeline.process(image, edges=listened)
+        # edge lines only for a listener (Rohr's walker, a recorder; the studio's tracker reads
+        # none), asked at every frame: a subscriber discovered late gets them from then on
+        mode = self.params['edges']
+        with_edges = edges_wanted(mode, self.pub_edges.get_subscription_count())
+        result = self.pipeline.process(image, edges=with_edges)
+        if not with_edges and edges_wanted(mode, self.pub_edges.get_subscription_count()):
+            # matched while this frame was processed: its edge lines go out with it all the same
+            start = time.perf_counter()
+            result.edges = self.pipeline.edge_lines(image, result)
+            result.timings['edges'] = time.perf_counter() - start
+            with_edges = True
         if (
             self.pipeline.background is not None
             and self.pipeline.background is not self._saved_background
         ):
             self._save_background()
-        self._publish(msg, result)
+        self._publish(msg, result, with_edges)
         self.health.count('processed')
         if result.warming_up:
             self.health.count('warming_up')
         self.health.set('contour_points', len(result.contours))
-        self.health.set('edge_lines', len(result.edges) if listened else 'off (no subscriber)')
+        self.health.set(
+            'edge_lines',
+            len(result.edges)
+            if with_edges
+            else ('off (no subscriber)' if mode == 'auto' else f'off (edges: {mode})'),
+        )
         self.health.set('last_frame_ms', f'{1000 * sum(result.timings.values()):.2f}')
         self.health.ok()
 
-    def _publish(self, image: Image, result) -> None:
+    def _publish(self, image: Image, result, with_edges: bool) -> None:
         self.pub_contours.publish(array_to_pointcloud(result.contours, image.header))
-        self.pub_edges.publish(array_to_pointcloud(result.edges, image.header))
+        if with_edges:  # an empty cloud would say "no edge lines found", not "none computed"
+            self.pub_edges.publish(array_to_pointcloud(result.edges, image.header))
         box = PolygonStamped()
         box.header = image.header
         if result.box is not None:

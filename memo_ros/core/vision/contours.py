@@ -299,18 +299,11 @@ class ContourPipeline:
             s.contour_offset,
         )
         t3 = clock()
-        if want_edges and segmentation.box is not None:
-            lines = edge_lines_in_boxes(
-                grey,
-                [r.box for r in segmentation.regions],
-                s.edge_low,
-                s.edge_high,
-                s.min_edge_length,
-                s.edge_tolerance,
-                s.edge_margin,
-            )
-        else:
-            lines = np.zeros(0, EDGE_DTYPE)
+        lines = (
+            self._edge_lines(grey, segmentation.box, segmentation.regions)
+            if want_edges
+            else np.zeros(0, EDGE_DTYPE)
+        )
         t4 = clock()
         timings.update(cleanup=t2 - t1, contours=t3 - t2, edges=t4 - t3)
         return PipelineResult(
@@ -322,6 +315,31 @@ class ContourPipeline:
             False,
             segmentation,
             segmentation.regions,
+        )
+
+    def edge_lines(self, image: np.ndarray, result: PipelineResult) -> np.ndarray:
+        """Rohr's edge lines of a frame :meth:`process` took without them (EDGE_DTYPE).
+
+        The same lines as ``process(image, edges=True)`` gives: a node whose edges gained a
+        subscriber while the frame was processed still publishes them with it.
+        """
+        image = np.asarray(image)
+        grey = image if image.ndim == 2 else grey_of(image)
+        return self._edge_lines(grey, result.box, result.regions)
+
+    def _edge_lines(self, grey: np.ndarray, box, regions: list[Region]) -> np.ndarray:
+        """Edge lines in each kept region's rectangle; none when nobody is seen."""
+        if box is None:
+            return np.zeros(0, EDGE_DTYPE)
+        s = self.settings
+        return edge_lines_in_boxes(
+            grey,
+            [r.box for r in regions],
+            s.edge_low,
+            s.edge_high,
+            s.min_edge_length,
+            s.edge_tolerance,
+            s.edge_margin,
         )
 
 

@@ -35,11 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'suite',
         choices=SUITES,
         help='what to measure: foundation = renderer and simulator; '
-        'contours = the contour pipeline per 640x480 frame, one OpenCV thread; '
+        'contours = the contour pipeline per 640x480 frame, one OpenCV thread, with and '
+        'without edge lines; '
         'contour-node = the contour_node process fed at 30 and 60 Hz over DDS; '
         'selector = camera assignment per frame, 14 parts x 3 cameras (--repeat: passes over '
         'each sequence); tracker = the articulated EKF update per frame at 200, 1,000 and '
-        '5,000 contour points per camera from 3 cameras, and at 1,000 from 4, 6 and 8 '
+        "5,000 contour points per camera from the studio's 3 cameras, and at 1,000 from each "
+        'count of --cameras on a ring, with the cost per added camera '
         "(--repeat: passes over the sequence); walker = Rohr's "
         'walker per '
         "frame on a street-walk, initialization and tracking, against the paper's exhaustive grid "
@@ -55,6 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         '--json', action='store_true', help='print one JSON object instead of the table'
+    )
+    parser.add_argument(
+        '--cameras',
+        default='3,4,6,8',
+        help='tracker: camera counts on a ring around the studio, 1,000 contour points each, '
+        'comma separated (default 3,4,6,8)',
     )
     bench_graph.add_arguments(parser)
     bench_dance.add_arguments(parser)
@@ -102,13 +110,21 @@ def _suite(name: str):
         )
     if name == 'tracker':
         from memo_ros.tools.benchmarks.tracker import (
+            parse_cameras,
             print_tracker_benchmark,
             run_tracker_benchmark,
         )
 
-        return (lambda args: run_tracker_benchmark(repeat=args.repeat)), with_command(
-            print_tracker_benchmark
-        )
+        def measure_tracker(args: argparse.Namespace) -> dict:
+            from memo_ros.tools.cli import CliError
+
+            try:
+                cameras = parse_cameras(args.cameras)
+            except ValueError as exc:
+                raise CliError(str(exc)) from None
+            return run_tracker_benchmark(repeat=args.repeat, cameras=cameras)
+
+        return measure_tracker, with_command(print_tracker_benchmark)
     if name == 'walker':
         from memo_ros.tools.benchmarks.walker import (
             print_walker_benchmark,
@@ -148,5 +164,7 @@ def command_line(args: argparse.Namespace) -> str:
         options = (
             [] if args.suite == 'contour-node' else ['--repeat', str(args.repeat)]
         )  # that suite has no repeats
+        if args.suite == 'tracker':
+            options += ['--cameras', args.cameras]
     words = ['memo-ros', 'benchmark', args.suite, *options] + (['--json'] if args.json else [])
     return shlex.join(words)

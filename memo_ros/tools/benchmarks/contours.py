@@ -3,8 +3,11 @@
 A simulated studio-walk is written as mono8 and as bgr8 bags; every cam_front
 frame goes through :class:`memo_ros.core.vision.contours.ContourPipeline` exactly as
 the contour node runs it (``image_to_array`` + ``to_grey8``, then the
-pipeline), once per segmenter, on one OpenCV thread.  Figures are wall-clock
-milliseconds per frame: median and 90th percentile, total and per stage.
+pipeline), once per segmenter, on one OpenCV thread, and twice: with the edge
+lines (a node whose edges someone subscribes to, the walker) and without (the
+studio graph, ``edges: auto`` with no subscriber).  The two pipelines take each
+frame in turn, so a change in the machine's load hits both alike.  Figures are
+wall-clock milliseconds per frame: median and 90th percentile, total and per stage.
 """
 
 from __future__ import annotations
@@ -55,29 +58,37 @@ def _frames(bag: Path) -> list[tuple]:
 
 def _time_pipeline(
     frames: list[tuple], settings: dict, warmup: int, repeat: int
-) -> dict[str, np.ndarray]:
-    """Milliseconds per stage and in total for every timed frame.
+) -> dict[bool, dict[str, np.ndarray]]:
+    """Milliseconds per stage and in total for every timed frame, with and without edge lines.
 
-    ``repeat`` passes, history reset between.
+    Keyed by whether the edge lines were computed; ``repeat`` passes, history reset between.
     """
     clock = time.perf_counter
-    times = {stage: [] for stage in STAGES + ('total',)}
-    pipeline = ContourPipeline(**settings)
+    times = {
+        with_edges: {stage: [] for stage in STAGES + ('total',)} for with_edges in (True, False)
+    }
+    pipelines = {with_edges: ContourPipeline(**settings) for with_edges in times}
     for _ in range(repeat):
-        pipeline.reset()
+        for pipeline in pipelines.values():
+            pipeline.reset()
         for index, (encoding, height, width, step, data, big) in enumerate(frames):
-            t0 = clock()
-            grey = to_grey8(image_to_array(encoding, height, width, step, data, big), encoding)
-            t1 = clock()
-            result = pipeline.process(grey)
-            t2 = clock()
-            if index < warmup or result.warming_up:
-                continue
-            times['convert'].append(t1 - t0)
-            for stage in STAGES[1:]:
-                times[stage].append(result.timings[stage])
-            times['total'].append(t2 - t0)
-    return {k: 1000.0 * np.asarray(v) for k, v in times.items()}
+            for with_edges, pipeline in pipelines.items():
+                t0 = clock()
+                grey = to_grey8(image_to_array(encoding, height, width, step, data, big), encoding)
+                t1 = clock()
+                result = pipeline.process(grey, edges=with_edges)
+                t2 = clock()
+                if index < warmup or result.warming_up:
+                    continue
+                out = times[with_edges]
+                out['convert'].append(t1 - t0)
+                for stage in STAGES[1:]:
+                    out[stage].append(result.timings[stage])
+                out['total'].append(t2 - t0)
+    return {
+        with_edges: {k: 1000.0 * np.asarray(v) for k, v in ms.items()}
+        for with_edges, ms in times.items()
+    }
 
 
 def run_contour_benchmark(
@@ -113,16 +124,18 @@ def run_contour_benchmark(
             cases = []
             for encoding, frame_list in bags.items():
                 for name, settings in SEGMENTERS.items():
-                    ms = _time_pipeline(frame_list, settings, warmup, repeat)
-                    cases.append(
-                        {
-                            'encoding': encoding,
-                            'segmenter': name,
-                            'frames': int(len(ms['total'])),
-                            'median_ms': {k: float(np.median(v)) for k, v in ms.items()},
-                            'p90_ms': {k: float(np.percentile(v, 90)) for k, v in ms.items()},
-                        }
-                    )
+                    timed = _time_pipeline(frame_list, settings, warmup, repeat)
+                    for with_edges, ms in timed.items():
+                        cases.append(
+                            {
+                                'encoding': encoding,
+                                'segmenter': name,
+                                'edges': with_edges,
+                                'frames': int(len(ms['total'])),
+                                'median_ms': {k: float(np.median(v)) for k, v in ms.items()},
+                                'p90_ms': {k: float(np.percentile(v, 90)) for k, v in ms.items()},
+                            }
+                        )
     finally:
         cv2.setNumThreads(threads)
     return {
@@ -149,14 +162,25 @@ def print_contour_benchmark(report: dict) -> None:
     )
     columns = STAGES + ('total',)
     print(
-        f'{"encoding":8} {"segmenter":10} {"frames":>6} ' + ' '.join(f'{c:>14}' for c in columns)
+        f'{"encoding":8} {"segmenter":10} {"edges":5} {"frames":>6} '
+        + ' '.join(f'{c:>14}' for c in columns)
     )
     for case in report['cases']:
         cells = ' '.join(
             f'{case["median_ms"][c]:6.2f} ({case["p90_ms"][c]:5.2f})' for c in columns
         )
-        print(f'{case["encoding"]:8} {case["segmenter"]:10} {case["frames"]:6d} {cells}')
-    print('figures: median (p90) milliseconds per frame')
+        edges = 'on' if case['edges'] else 'off'
+        print(f'{case["encoding"]:8} {case["segmenter"]:10} {edges:5} {case["frames"]:6d} {cells}')
+    print('figures: median (p90) milliseconds per frame; edges off: no edge lines computed')
+    on = {(c['encoding'], c['segmenter']): c for c in report['cases'] if c['edges']}
+    for c in report['cases']:
+        if not c['edges']:
+            with_edges = on[(c['encoding'], c['segmenter'])]['median_ms']['total']
+            print(
+                f'{c["encoding"]} {c["segmenter"]}: without edge lines '
+                f'{c["median_ms"]["total"] / with_edges:.2f} of the time with them '
+                f'({with_edges - c["median_ms"]["total"]:.2f} ms less at the median)'
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
