@@ -14,6 +14,7 @@ from memo_ros.tools.benchmarks.dance import (
     _score,
     print_dance_benchmark,
     run_dance_benchmark,
+    tracker_overrides,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -43,6 +44,20 @@ def test_a_short_dance_is_tracked_and_reported(capsys):
     out = capsys.readouterr().out
     assert 'ring4' in out and 'pass' in out and '1 of 1 runs pass' in out
     assert 'exact rendered 160x120 silhouettes' in out
+
+
+def test_tracker_settings_given_on_the_command_line_reach_the_tracker_and_the_report(capsys):
+    report = run_dance_benchmark(
+        [30.0],
+        ['ring4'],
+        frames=3,
+        size=(160, 120),
+        contours='silhouettes',
+        overrides=tracker_overrides(['hold_sigma_px=2', 'recover_iterations=3']),
+    )
+    assert report['tracker'] == {'hold_sigma_px': 2.0, 'recover_iterations': 3}
+    print_dance_benchmark(report)
+    assert 'TrackerSettings(hold_sigma_px=2.0, recover_iterations=3)' in capsys.readouterr().out
 
 
 def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
@@ -91,6 +106,9 @@ def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
         (('--contours', 'edges'), "unknown --contours 'edges'"),
         (('--frames', '0'), '--frames must be at least 1'),
         (('--jobs', '0'), '--jobs must be at least 1'),
+        (('--tracker', 'nonsense=1'), "--tracker 'nonsense=1': not a numeric TrackerSettings"),
+        (('--tracker', 'hold_sigma_px=wide'), "'wide' is not a float"),
+        (('--tracker', 'recover_margin=-1'), 'must be finite and not negative'),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(args, words):

@@ -90,7 +90,7 @@ def _hand_error_after(settings: TrackerSettings, frames: int = 10) -> float:
 def test_the_silhouette_pulls_back_an_arm_no_sample_reaches():
     off = {'recover_margin': 0.0, 'limb_exchange': 0.0}
     assert _hand_error_after(TrackerSettings(hold_sigma_px=0.0, **off)) > 0.3
-    assert _hand_error_after(TrackerSettings(**off)) < 0.05
+    assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, **off)) < 0.05
 
 
 def test_a_lost_limb_is_searched_again_through_a_fast_dance():
@@ -101,5 +101,6 @@ def test_a_lost_limb_is_searched_again_through_a_fast_dance():
     """
     from memo_ros.tools.benchmarks.dance import track_dance
 
-    run = track_dance('orthogonal', 180.0, size=(320, 240), contours='silhouettes')
+    both = {'hold_sigma_px': 2.0, 'recover_margin': 1.0}
+    run = track_dance('orthogonal', 180.0, size=(320, 240), contours='silhouettes', overrides=both)
     assert run['passed'], run['failures']

@@ -248,18 +248,20 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'recover_margin',
-        1.0,
+        0.0,
         "misfit (sigma^2 per contour sample) above the track's running usual at which the pose, "
         'and the pose with each pair of limbs exchanged, are refitted from a broad prior and the '
-        'best kept (a lost limb re-initialised); 0 never re-searches',
+        'best kept (a lost limb re-initialised); 0 (default) never re-searches; 1 with '
+        'hold_sigma_px 2 followed studio-dance',
         0.0,
         100.0,
     ),
     Param(
         'hold_sigma_px',
-        2.0,
+        0.0,
         "noise (px) of the silhouette's hold on a model outline node that projects outside a "
-        "camera's silhouette: the node is pulled back; 0 switches the hold off",
+        "camera's silhouette: the node is pulled back; 0 (default) switches the hold off: on the "
+        "Pose2Sim demo's real silhouettes 2 pulled the legs 350-500 mm off",
         0.0,
         100.0,
     ),

@@ -68,6 +68,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '(exact rendered outlines)',
     )
     parser.add_argument(
+        '--tracker',
+        action='append',
+        default=[],
+        metavar='NAME=VALUE',
+        help='dance: a TrackerSettings field other than its default, e.g. hold_sigma_px=2 '
+        '(repeatable; default: none, the tracker as it ships)',
+    )
+    parser.add_argument(
         '--jobs',
         type=int,
         default=min(2, _cpus()),
@@ -79,6 +87,8 @@ def command_words(args: argparse.Namespace) -> list[str]:
     """Return this suite's options as command-line words (for the report's command line)."""
     words = ['--headings', args.headings, '--rig', args.rig, '--size', args.size]
     words += ['--contours', args.contours, '--jobs', str(args.jobs)]
+    for setting in args.tracker:
+        words += ['--tracker', setting]
     return words + ([] if args.frames is None else ['--frames', str(args.frames)])
 
 
@@ -108,8 +118,37 @@ def measure(args: argparse.Namespace) -> dict:
         raise CliError('--jobs must be at least 1')
     rigs = list(RIGS) if args.rig == 'both' else [args.rig]
     return run_dance_benchmark(
-        headings, rigs, args.frames, (width, height), args.contours, args.jobs
+        headings,
+        rigs,
+        args.frames,
+        (width, height),
+        args.contours,
+        args.jobs,
+        tracker_overrides(args.tracker),
     )
+
+
+def tracker_overrides(words: list[str]) -> dict:
+    """Return {field: value} from NAME=VALUE words naming numeric TrackerSettings fields."""
+    from memo_ros.core.multiview.tracking import TrackerSettings
+    from memo_ros.tools.cli import CliError
+
+    defaults = TrackerSettings()
+    out: dict = {}
+    for word in words:
+        name, _, text = word.partition('=')
+        default = getattr(defaults, name, None)
+        if isinstance(default, bool) or not isinstance(default, (int, float)):
+            raise CliError(f'--tracker {word!r}: not a numeric TrackerSettings field')
+        try:
+            value = type(default)(text)
+        except ValueError:
+            kind = type(default).__name__
+            raise CliError(f'--tracker {word!r}: {text!r} is not a {kind}') from None
+        if not np.isfinite(value) or value < 0:
+            raise CliError(f'--tracker {word!r}: must be finite and not negative')
+        out[name] = value
+    return out
 
 
 def run_dance_benchmark(
@@ -119,12 +158,16 @@ def run_dance_benchmark(
     size: tuple[int, int] = SIZE,
     contours: str = 'images',
     jobs: int = 1,
+    overrides: dict | None = None,
 ) -> dict:
     """Track studio-dance from every heading on every rig; return the runs and the worst figures.
 
     ``jobs`` runs go in parallel, each in its own process with one BLAS and one OpenCV thread.
     """
-    cases = [(rig, float(h), frames, size, contours) for rig in rigs for h in headings_deg]
+    overrides = overrides or {}
+    cases = [
+        (rig, float(h), frames, size, contours, overrides) for rig in rigs for h in headings_deg
+    ]
     start = time.perf_counter()
     if jobs > 1 and len(cases) > 1:
         saved = {k: os.environ.get(k) for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')}
@@ -147,6 +190,7 @@ def run_dance_benchmark(
         'contours': contours,
         'noise': NOISE if contours == 'images' else 0.0,
         'jobs': jobs,
+        'tracker': overrides,
         'limits': {
             'mpjpe_mm_mean': MPJPE_MEAN_MM,
             'mpjpe_mm_max': MPJPE_MAX_MM,
@@ -164,8 +208,8 @@ def _run_case(case: tuple) -> dict:
     import cv2
 
     cv2.setNumThreads(1)
-    rig, heading, frames, size, contours = case
-    return track_dance(rig, heading, frames, size, contours)
+    rig, heading, frames, size, contours, overrides = case
+    return track_dance(rig, heading, frames, size, contours, overrides=overrides)
 
 
 def track_dance(
@@ -175,8 +219,12 @@ def track_dance(
     size: tuple[int, int] = SIZE,
     contours: str = 'images',
     body: Body | None = None,
+    overrides: dict | None = None,
 ) -> dict:
-    """Track one studio-dance offline and score it against its truth, frame by frame."""
+    """Track one studio-dance offline and score it against its truth, frame by frame.
+
+    ``overrides``: TrackerSettings fields other than their defaults.
+    """
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
     body = body or load_default_body()
@@ -186,7 +234,8 @@ def track_dance(
     times = np.arange(scenario.frames) / scenario.frame_rate
     q_true, _ = scenario.coordinates(times)
     true_r, true_o = body.forward_kinematics(q_true)
-    tracker = ArticulatedTracker(body, scenario.cameras, TrackerSettings(), initial_pose=q_true[0])
+    settings = TrackerSettings(**(overrides or {}))
+    tracker = ArticulatedTracker(body, scenario.cameras, settings, initial_pose=q_true[0])
     est_r, est_o = np.full_like(true_r, np.nan), np.full_like(true_o, np.nan)
     tracked = np.zeros(len(times), bool)
     seconds = 0.0  # in the tracker's steps
@@ -369,9 +418,10 @@ def print_dance_benchmark(report: dict) -> None:
         else f'exact rendered {w}x{h} silhouettes'
     )
     limits = report['limits']
+    settings = ', '.join(f'{k}={v}' for k, v in report.get('tracker', {}).items())
     print(
-        f'studio-dance tracked offline by ArticulatedTracker(TrackerSettings()), started at the '
-        f'true first pose, every camera for every part; contours: {source}'
+        f'studio-dance tracked offline by ArticulatedTracker(TrackerSettings({settings})), '
+        f'started at the true first pose, every camera for every part; contours: {source}'
     )
     print(
         f'Done-when: MPJPE mean <= {limits["mpjpe_mm_mean"]:g} mm, no frame over '
