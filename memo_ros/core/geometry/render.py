@@ -65,11 +65,11 @@ def render(
     n_parts = len(lengths)
     area = np.zeros(n_parts, np.int64)
     selected = range(n_parts) if parts is None else parts
+    boxes = np.stack(_projected_boxes(view, rotations, origins, semi_axes, lengths), 1).tolist()
     for i in selected:
-        box = _projected_box(view, rotations[i], origins[i], semi_axes[i], lengths[i])
-        if box is None:
+        u0, u1, v0, v1 = boxes[i]
+        if u0 >= u1 or v0 >= v1:
             continue
-        u0, u1, v0, v1 = box
         block = rays[v0:v1, u0:u1].reshape(-1, 3)
         dist, n_part = _intersect_cylinder(
             centre, block, rotations[i], origins[i], semi_axes[i], lengths[i], normals
@@ -92,28 +92,6 @@ def render(
             block_n[nearer] = n_cam
             normal_img[v0:v1, u0:u1] = block_n.reshape(v1 - v0, u1 - u0, 3)
     return Rendering(label, depth, normal_img, area)
-
-
-def _projected_box(view: Camera, rotation, origin, axes, length, margin: int = 2):
-    """Pixel bounds (u0, u1, v0, v1) of a part's projection.
-
-    Whole image if it reaches behind the camera.
-    """
-    if not _sane_parts(rotation[None], origin[None])[0]:
-        return None
-    a, b = axes
-    corners = np.array([[x, y, z] for x in (-a, a) for y in (-b, b) for z in (0.0, length)])
-    world = origin + corners @ rotation.T
-    uv = view.project(world)
-    if not np.all(np.isfinite(uv)):
-        return 0, view.width, 0, view.height
-    u0 = max(int(np.floor(uv[:, 0].min())) - margin, 0)
-    u1 = min(int(np.ceil(uv[:, 0].max())) + margin + 1, view.width)
-    v0 = max(int(np.floor(uv[:, 1].min())) - margin, 0)
-    v1 = min(int(np.ceil(uv[:, 1].max())) + margin + 1, view.height)
-    if u0 >= u1 or v0 >= v1:
-        return None
-    return u0, u1, v0, v1
 
 
 def _intersect_cylinder(
@@ -233,9 +211,10 @@ def _projected_boxes(
     lengths: np.ndarray,
     margin: int = 2,
 ) -> tuple[np.ndarray, ...]:
-    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part as :func:`_projected_box`; empty.
+    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part's projection; empty: u0 >= u1.
 
-    u0 >= u1.
+    The box of the projected corners of the part's bounding box, ``margin`` pixels wider; the
+    whole image when a corner is behind the camera, empty for a part posed absurdly.
     """
     signs = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 1.0)])
     scale = np.concatenate([semi_axes, lengths[:, None]], axis=1)  # (P, 3)
