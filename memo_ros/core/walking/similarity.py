@@ -52,18 +52,21 @@ def candidate_edges(
     length = np.linalg.norm(d, axis=1)
     u = d / np.maximum(length, 1e-9)[:, None]
     r = np.maximum(params.c_r * length, params.min_window) + margin
-    rel1 = edges[None, :, 0:2] - a[:, None]  # (S, E, 2)
-    rel2 = edges[None, :, 2:4] - a[:, None]
-    t1 = rel1[..., 0] * u[:, None, 0] + rel1[..., 1] * u[:, None, 1]
-    t2 = rel2[..., 0] * u[:, None, 0] + rel2[..., 1] * u[:, None, 1]
-    n1 = rel1[..., 1] * u[:, None, 0] - rel1[..., 0] * u[:, None, 1]
-    n2 = rel2[..., 1] * u[:, None, 0] - rel2[..., 0] * u[:, None, 1]
+    ax, ay, ux, uy = a[:, 0:1], a[:, 1:2], u[:, 0:1], u[:, 1:2]  # (S, 1)
+    x1, y1 = edges[:, 0] - ax, edges[:, 1] - ay  # (S, E), relative to a
+    x2, y2 = edges[:, 2] - ax, edges[:, 3] - ay
+    t1 = x1 * ux + y1 * uy
+    t2 = x2 * ux + y2 * uy
+    n1 = y1 * ux - x1 * uy
+    n2 = y2 * ux - x2 * uy
     L, R = length[:, None] + margin, r[:, None]
     along = (np.maximum(t1, t2) >= -margin) & (np.minimum(t1, t2) <= L)
     across = (np.maximum(n1, n2) >= -R) & (np.minimum(n1, n2) <= R)
-    angle = np.arctan2(np.abs(n2 - n1), np.abs(t2 - t1))
-    contour, edge = np.nonzero(along & across & (angle <= 3.0 * params.sigma_phi))
-    return contour, edge
+    contour, edge = np.nonzero(along & across)
+    dt = t2[contour, edge] - t1[contour, edge]  # the angle only where the window is reached
+    dn = n2[contour, edge] - n1[contour, edge]
+    keep = np.arctan2(np.abs(dn), np.abs(dt)) <= 3.0 * params.sigma_phi
+    return contour[keep], edge[keep]
 
 
 def contour_scores(
