@@ -66,29 +66,68 @@ def render(
     area = np.zeros(n_parts, np.int64)
     selected = range(n_parts) if parts is None else parts
     boxes = np.stack(_projected_boxes(view, rotations, origins, semi_axes, lengths), 1).tolist()
-    if not normals:
-        _cast_boxes(
-            rays,
-            centre,
-            optical_z,
-            rotations,
-            origins,
-            semi_axes,
-            lengths,
-            [(i, *boxes[i]) for i in selected],
-            label,
-            depth,
-            area,
-        )
-        return Rendering(label, depth, None, area)
-    for i in selected:
-        u0, u1, v0, v1 = boxes[i]
+    _cast_boxes(
+        rays,
+        centre,
+        optical_z,
+        np.asarray(camera.R_world_cam, float),
+        rotations,
+        origins,
+        semi_axes,
+        lengths,
+        [(i, *boxes[i]) for i in selected],
+        label,
+        depth,
+        normal_img,
+        area,
+    )
+    return Rendering(label, depth, normal_img, area)
+
+
+def _cast_boxes(
+    rays: np.ndarray,
+    centre: np.ndarray,
+    optical_z: np.ndarray,
+    R_world_cam: np.ndarray,
+    rotations: np.ndarray,
+    origins: np.ndarray,
+    semi_axes: np.ndarray,
+    lengths: np.ndarray,
+    boxes: list,
+    label: np.ndarray,
+    depth: np.ndarray,
+    normal_img: np.ndarray | None,
+    area: np.ndarray,
+) -> None:
+    """Cast the parts' boxes (i, u0, u1, v0, v1), in order, into label, depth (and normals).
+
+    The ray-cylinder test (:func:`_hit_local`, elementwise, ~50 numpy calls) runs once on every
+    box's pixels instead of once per part, where the calls on a thousand pixels each cost more
+    than their arithmetic; each part's rays are turned into its frame by the part's own product,
+    and the hits are then written part after part where nearer than the depth so far, exactly as
+    before.
+    """
+    cast, o, d, a, b, length = [], [], [], [], [], []
+    for i, u0, u1, v0, v1 in boxes:
         if u0 >= u1 or v0 >= v1:
             continue
         block = rays[v0:v1, u0:u1].reshape(-1, 3)
-        dist, n_part = _intersect_cylinder(
-            centre, block, rotations[i], origins[i], semi_axes[i], lengths[i], normals
-        )
+        n = len(block)
+        cast.append((i, u0, u1, v0, v1, block))
+        o.append(np.broadcast_to(rotations[i].T @ (centre - origins[i]), (n, 3)))
+        d.append(block @ rotations[i])
+        a.append(np.full(n, semi_axes[i][0]))
+        b.append(np.full(n, semi_axes[i][1]))
+        length.append(np.full(n, lengths[i]))
+    if not cast:
+        return
+    cat = np.concatenate
+    want_normals = normal_img is not None
+    dist_all, n_all = _hit_local(cat(o), cat(d), cat(a), cat(b), cat(length), want_normals)
+    end = 0
+    for i, u0, u1, v0, v1, block in cast:
+        begin, end = end, end + len(block)
+        dist = dist_all[begin:end]
         hit = np.isfinite(dist)
         area[i] = int(hit.sum())
         if not area[i]:
@@ -101,67 +140,11 @@ def render(
         labels = label[v0:v1, u0:u1].reshape(-1)
         labels[nearer] = i + 1
         label[v0:v1, u0:u1] = labels.reshape(v1 - v0, u1 - u0)
-        if normal_img is not None:  # normals were asked for
-            n_cam = n_part[nearer] @ (np.asarray(camera.R_world_cam).T @ rotations[i]).T
+        if normal_img is not None and n_all is not None:
+            n_cam = n_all[begin:end][nearer] @ (R_world_cam.T @ rotations[i]).T
             block_n = normal_img[v0:v1, u0:u1].reshape(-1, 3)
             block_n[nearer] = n_cam
             normal_img[v0:v1, u0:u1] = block_n.reshape(v1 - v0, u1 - u0, 3)
-    return Rendering(label, depth, normal_img, area)
-
-
-def _cast_boxes(
-    rays: np.ndarray,
-    centre: np.ndarray,
-    optical_z: np.ndarray,
-    rotations: np.ndarray,
-    origins: np.ndarray,
-    semi_axes: np.ndarray,
-    lengths: np.ndarray,
-    boxes: list,
-    label: np.ndarray,
-    depth: np.ndarray,
-    area: np.ndarray,
-) -> None:
-    """:func:`render`'s loop over the parts' boxes (i, u0, u1, v0, v1) without normals, batched.
-
-    Each part's rays are turned into its frame by its own products, as in the loop, and every box's
-    pixels then go through one ray-cylinder test instead of one per part (whose ~50 numpy calls on
-    a thousand pixels each cost more than their arithmetic).  The nearest hit per pixel wins, the
-    earlier part on a tie, as the loop's ``z < depth`` does: the same labels, depths and areas.
-    """
-    width = label.shape[1]
-    pixel, order, o, d, z_dir, a, b, length = [], [], [], [], [], [], [], []
-    for k, (i, u0, u1, v0, v1) in enumerate(boxes):
-        if u0 >= u1 or v0 >= v1:
-            continue
-        block = rays[v0:v1, u0:u1].reshape(-1, 3)
-        n = len(block)
-        rows, cols = np.divmod(np.arange(n), u1 - u0)
-        pixel.append((v0 + rows) * width + u0 + cols)
-        order.append(np.full(n, k))
-        o.append(np.broadcast_to(rotations[i].T @ (centre - origins[i]), (n, 3)))
-        d.append(block @ rotations[i])
-        z_dir.append(block @ optical_z)
-        a.append(np.full(n, semi_axes[i][0]))
-        b.append(np.full(n, semi_axes[i][1]))
-        length.append(np.full(n, lengths[i]))
-    if not pixel:
-        return
-    cat = np.concatenate
-    dist, _ = _hit_local(cat(o), cat(d), cat(a), cat(b), cat(length), False)
-    hit = np.flatnonzero(np.isfinite(dist))
-    seq = cat(order)[hit]
-    parts = np.array([i for i, *_ in boxes])
-    cast = np.unique(cat(order))  # the boxes that were not empty
-    area[parts[cast]] = np.bincount(seq, minlength=len(boxes))[cast]
-    pix = cat(pixel)[hit]
-    z = (dist[hit] * cat(z_dir)[hit]).astype(np.float32)
-    first = np.lexsort((seq, z, pix))  # per pixel: nearest, then earliest
-    pix, z, seq = pix[first], z[first], seq[first]
-    winner = np.ones(len(pix), bool)
-    winner[1:] = pix[1:] != pix[:-1]
-    label.ravel()[pix[winner]] = parts[seq[winner]] + 1
-    depth.ravel()[pix[winner]] = z[winner]
 
 
 def _intersect_cylinder(
