@@ -147,24 +147,6 @@ def _cast_boxes(
             normal_img[v0:v1, u0:u1] = block_n.reshape(v1 - v0, u1 - u0, 3)
 
 
-def _intersect_cylinder(
-    centre: np.ndarray,
-    directions: np.ndarray,
-    rotation: np.ndarray,
-    origin: np.ndarray,
-    axes: np.ndarray,
-    length: float,
-    want_normals: bool,
-):
-    """Distance along each ray to the elliptic cylinder (inf = miss).
-
-    Also the part-frame normals at the hits (when ``want_normals``).
-    """
-    o = rotation.T @ (centre - origin)  # ray origin in the part frame
-    d = directions @ rotation  # ray directions in the part frame (N, 3)
-    return _hit_local(o, d, axes[0], axes[1], length, want_normals)
-
-
 def _hit_local(o: np.ndarray, d: np.ndarray, a, b, length, want_normals: bool):
     """Ray-cylinder hits in part frames.
 
