@@ -65,15 +65,69 @@ def render(
     n_parts = len(lengths)
     area = np.zeros(n_parts, np.int64)
     selected = range(n_parts) if parts is None else parts
-    for i in selected:
-        box = _projected_box(view, rotations[i], origins[i], semi_axes[i], lengths[i])
-        if box is None:
+    boxes = np.stack(_projected_boxes(view, rotations, origins, semi_axes, lengths), 1).tolist()
+    _cast_boxes(
+        rays,
+        centre,
+        optical_z,
+        np.asarray(camera.R_world_cam, float),
+        rotations,
+        origins,
+        semi_axes,
+        lengths,
+        [(i, *boxes[i]) for i in selected],
+        label,
+        depth,
+        normal_img,
+        area,
+    )
+    return Rendering(label, depth, normal_img, area)
+
+
+def _cast_boxes(
+    rays: np.ndarray,
+    centre: np.ndarray,
+    optical_z: np.ndarray,
+    R_world_cam: np.ndarray,
+    rotations: np.ndarray,
+    origins: np.ndarray,
+    semi_axes: np.ndarray,
+    lengths: np.ndarray,
+    boxes: list,
+    label: np.ndarray,
+    depth: np.ndarray,
+    normal_img: np.ndarray | None,
+    area: np.ndarray,
+) -> None:
+    """Cast the parts' boxes (i, u0, u1, v0, v1), in order, into label, depth (and normals).
+
+    The ray-cylinder test (:func:`_hit_local`, elementwise, ~50 numpy calls) runs once on every
+    box's pixels instead of once per part, where the calls on a thousand pixels each cost more
+    than their arithmetic; each part's rays are turned into its frame by the part's own product,
+    and the hits are then written part after part where nearer than the depth so far, exactly as
+    before.
+    """
+    cast, o, d, a, b, length = [], [], [], [], [], []
+    for i, u0, u1, v0, v1 in boxes:
+        if u0 >= u1 or v0 >= v1:
             continue
-        u0, u1, v0, v1 = box
         block = rays[v0:v1, u0:u1].reshape(-1, 3)
-        dist, n_part = _intersect_cylinder(
-            centre, block, rotations[i], origins[i], semi_axes[i], lengths[i], normals
-        )
+        n = len(block)
+        cast.append((i, u0, u1, v0, v1, block))
+        o.append(np.broadcast_to(rotations[i].T @ (centre - origins[i]), (n, 3)))
+        d.append(block @ rotations[i])
+        a.append(np.full(n, semi_axes[i][0]))
+        b.append(np.full(n, semi_axes[i][1]))
+        length.append(np.full(n, lengths[i]))
+    if not cast:
+        return
+    cat = np.concatenate
+    want_normals = normal_img is not None
+    dist_all, n_all = _hit_local(cat(o), cat(d), cat(a), cat(b), cat(length), want_normals)
+    end = 0
+    for i, u0, u1, v0, v1, block in cast:
+        begin, end = end, end + len(block)
+        dist = dist_all[begin:end]
         hit = np.isfinite(dist)
         area[i] = int(hit.sum())
         if not area[i]:
@@ -86,52 +140,11 @@ def render(
         labels = label[v0:v1, u0:u1].reshape(-1)
         labels[nearer] = i + 1
         label[v0:v1, u0:u1] = labels.reshape(v1 - v0, u1 - u0)
-        if normal_img is not None:  # normals were asked for
-            n_cam = n_part[nearer] @ (np.asarray(camera.R_world_cam).T @ rotations[i]).T
+        if normal_img is not None and n_all is not None:
+            n_cam = n_all[begin:end][nearer] @ (R_world_cam.T @ rotations[i]).T
             block_n = normal_img[v0:v1, u0:u1].reshape(-1, 3)
             block_n[nearer] = n_cam
             normal_img[v0:v1, u0:u1] = block_n.reshape(v1 - v0, u1 - u0, 3)
-    return Rendering(label, depth, normal_img, area)
-
-
-def _projected_box(view: Camera, rotation, origin, axes, length, margin: int = 2):
-    """Pixel bounds (u0, u1, v0, v1) of a part's projection.
-
-    Whole image if it reaches behind the camera.
-    """
-    if not _sane_parts(rotation[None], origin[None])[0]:
-        return None
-    a, b = axes
-    corners = np.array([[x, y, z] for x in (-a, a) for y in (-b, b) for z in (0.0, length)])
-    world = origin + corners @ rotation.T
-    uv = view.project(world)
-    if not np.all(np.isfinite(uv)):
-        return 0, view.width, 0, view.height
-    u0 = max(int(np.floor(uv[:, 0].min())) - margin, 0)
-    u1 = min(int(np.ceil(uv[:, 0].max())) + margin + 1, view.width)
-    v0 = max(int(np.floor(uv[:, 1].min())) - margin, 0)
-    v1 = min(int(np.ceil(uv[:, 1].max())) + margin + 1, view.height)
-    if u0 >= u1 or v0 >= v1:
-        return None
-    return u0, u1, v0, v1
-
-
-def _intersect_cylinder(
-    centre: np.ndarray,
-    directions: np.ndarray,
-    rotation: np.ndarray,
-    origin: np.ndarray,
-    axes: np.ndarray,
-    length: float,
-    want_normals: bool,
-):
-    """Distance along each ray to the elliptic cylinder (inf = miss).
-
-    Also the part-frame normals at the hits (when ``want_normals``).
-    """
-    o = rotation.T @ (centre - origin)  # ray origin in the part frame
-    d = directions @ rotation  # ray directions in the part frame (N, 3)
-    return _hit_local(o, d, axes[0], axes[1], length, want_normals)
 
 
 def _hit_local(o: np.ndarray, d: np.ndarray, a, b, length, want_normals: bool):
@@ -233,9 +246,10 @@ def _projected_boxes(
     lengths: np.ndarray,
     margin: int = 2,
 ) -> tuple[np.ndarray, ...]:
-    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part as :func:`_projected_box`; empty.
+    """Pixel bounds (u0, u1, v0, v1), each (P,), of every part's projection; empty: u0 >= u1.
 
-    u0 >= u1.
+    The box of the projected corners of the part's bounding box, ``margin`` pixels wider; the
+    whole image when a corner is behind the camera, empty for a part posed absurdly.
     """
     signs = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (0.0, 1.0)])
     scale = np.concatenate([semi_axes, lengths[:, None]], axis=1)  # (P, 3)

@@ -120,6 +120,18 @@ def as_channels(frame: np.ndarray) -> np.ndarray:
     return frame[..., None] if frame.ndim == 2 else frame
 
 
+def largest_channel(image: np.ndarray) -> np.ndarray:
+    """Per pixel, the largest of the channels of (..., C): ``image.max(axis=-1)``.
+
+    As C - 1 elementwise maxima, several times faster than numpy's reduction over a short last
+    axis (the learning of a background took most of its time there).
+    """
+    out = image[..., 0].copy()
+    for c in range(1, image.shape[-1]):
+        np.maximum(out, image[..., c], out=out)
+    return out
+
+
 def grey_of(frame: np.ndarray) -> np.ndarray:
     """Grey levels of an (H, W, C) or (H, W) uint8 image.
 
@@ -291,8 +303,8 @@ def noise_level(
 
     The noise is 1.4826 MAD of the clean views, of the largest channel.
     """
-    deviation = (
-        np.abs(frames.astype(np.int16) - image.astype(np.int16)).max(axis=-1).astype(np.uint8)
+    deviation = largest_channel(np.abs(frames.astype(np.int16) - image.astype(np.int16))).astype(
+        np.uint8
     )
     mad, count = masked_median(deviation[..., None], excluded)
     sigma = MAD_TO_SIGMA * mad[..., 0].astype(np.float32)
@@ -320,7 +332,7 @@ def moving_patches(
         for j in {min(max(k + d, 0), count - 1) for d in (-2 * gap, -gap, gap, 2 * gap)} - {k}:
             np.maximum(
                 change,
-                cv2.absdiff(frames[k], frames[j]).reshape(frames.shape[1:]).max(axis=-1),
+                largest_channel(cv2.absdiff(frames[k], frames[j]).reshape(frames.shape[1:])),
                 out=change,
             )
         moving[k] = cv2.blur(change.astype(np.float32), (box, box)) > still
@@ -495,7 +507,7 @@ class SequenceSegmenter:
         ):
             self._still_run = np.zeros(frame.shape[:2], np.int16)
         else:
-            change = cv2.absdiff(frame, self._previous).reshape(frame.shape).max(axis=-1)
+            change = largest_channel(cv2.absdiff(frame, self._previous).reshape(frame.shape))
             still = change <= self.still_sigmas * self.model.noise
             self._still_run = np.where(
                 still, np.minimum(self._still_run + 1, self.settle_frames), 0
