@@ -6,6 +6,9 @@ bash scripts/setup.sh || exit 1
 # DDS tests stay on this host; each test picks its own ROS_DOMAIN_ID (test/conftest.py)
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export MPLBACKEND=Agg
+# numpy's BLAS on one thread, as in the nodes (memo_ros/nodes/__init__.py): on a shared 2-core
+# machine a second spinning BLAS thread made the EKF's small products many times slower
+export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1} OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 .venv/bin/python -m pytest -q -ra --durations=15 "$@"
 rc=$?
 if [ "$rc" -eq 5 ]; then
