@@ -47,11 +47,6 @@ def release_large_buffers() -> bool:
         return False
 
 
-# nodes that take camera images keep rmw_fastrtps' own history memory: with the DYNAMIC policy a
-# contour_node fed 640x480 images at 30 Hz for two minutes received 436 of 3,600 (test_soak)
-IMAGE_NODES = ('contour_node', 'walker_node')
-
-
 def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
     """Spin the node ``make_node`` builds until SIGINT, SIGTERM or shutdown; return the exit code.
 
@@ -70,8 +65,7 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
     for sig in STOP_SIGNALS:  # a signal never raises, not even in the node's shutdown
         signal.signal(sig, lambda signum, frame: stop.set())
     cv2.setNumThreads(1)  # one process per camera and stage share the cores (see memo_ros.nodes)
-    if name not in IMAGE_NODES:  # an oversized message must not stay resident in DDS's buffers
-        use_node_dds_profile()
+    use_node_dds_profile()  # an oversized message must not stay resident in DDS's buffers
     release_large_buffers()
     rclpy.init(
         args=args if args is not None else sys.argv,
