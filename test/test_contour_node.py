@@ -22,6 +22,30 @@ from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.tools.simulate import simulate
 
 
+def _diagnostics_of(node, hardware_id: str) -> dict[str, str]:
+    """Subscribe ``node`` to /diagnostics; return a dict of ``hardware_id``'s latest values."""
+    values: dict[str, str] = {}
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.hardware_id == hardware_id:
+                values.update({kv.key: kv.value for kv in status.values})
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    return values
+
+
+def _spinner(executor, period: float):
+    """Return spin(seconds, until): spin ``executor`` for that long or until ``until()`` holds."""
+
+    def spin(seconds: float, until=lambda: False) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            executor.spin_once(timeout_sec=period)
+
+    return spin
+
+
 def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
     return ros_env.start_node(
         'contour_node', '-r', f'__ns:=/{camera}', *[a for p in params for a in ('-p', p)]
@@ -231,12 +255,7 @@ def _run_background_node(
             info_pub = node.create_publisher(CameraInfo, '/cam_bg/camera_info', 10)
             node.create_subscription(PointCloud2, '/cam_bg/contours', contours.append, 100)
 
-            def on_diagnostics(msg: DiagnosticArray) -> None:
-                for status in msg.status:
-                    if status.hardware_id == 'cam_bg':
-                        values.update({kv.key: kv.value for kv in status.values})
-
-            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+            values = _diagnostics_of(node, 'cam_bg')
             deadline = time.monotonic() + 15
             while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
                 executor.spin_once(timeout_sec=0.1)
@@ -329,17 +348,9 @@ def test_edge_lines_follow_a_subscriber_that_comes_late_and_the_edges_parameter(
             image_pub = node.create_publisher(Image, '/cam_edge/image_raw', 10)
             info_pub = node.create_publisher(CameraInfo, '/cam_edge/camera_info', 10)
 
-            def on_diagnostics(msg: DiagnosticArray) -> None:
-                for status in msg.status:
-                    if status.hardware_id == 'cam_edge':
-                        values.update({kv.key: kv.value for kv in status.values})
+            values = _diagnostics_of(node, 'cam_edge')
 
-            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
-
-            def spin(seconds: float, until=lambda: False) -> None:
-                end = time.monotonic() + seconds
-                while time.monotonic() < end and not until():
-                    executor.spin_once(timeout_sec=0.05)
+            spin = _spinner(executor, 0.05)
 
             deadline = time.monotonic() + 15
             while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
@@ -530,19 +541,9 @@ def test_with_roi_wait_an_image_waits_for_the_tracked_body_of_the_image_before_i
                 lambda m: arrived.setdefault(stamp_to_ns(m.header.stamp), time.monotonic()),
                 10,
             )
-            values: dict[str, str] = {}
+            values = _diagnostics_of(node, 'cam_front')
 
-            def on_diagnostics(msg: DiagnosticArray) -> None:
-                for status in msg.status:
-                    if status.hardware_id == 'cam_front':
-                        values.update({kv.key: kv.value for kv in status.values})
-
-            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
-
-            def spin(seconds: float, until=lambda: False) -> None:
-                end = time.monotonic() + seconds
-                while time.monotonic() < end and not until():
-                    executor.spin_once(timeout_sec=0.02)
+            spin = _spinner(executor, 0.02)
 
             deadline = time.monotonic() + 20
             while (
@@ -601,12 +602,7 @@ def test_every_frame_of_a_300_hz_burst_is_processed_or_counted_once(ros_env):
             image_pub = node.create_publisher(Image, '/cam_burst/image_raw', 10)
             info_pub = node.create_publisher(CameraInfo, '/cam_burst/camera_info', 10)
 
-            def on_diagnostics(msg: DiagnosticArray) -> None:
-                for status in msg.status:
-                    if status.hardware_id == 'cam_burst':
-                        values.update({kv.key: kv.value for kv in status.values})
-
-            node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+            values = _diagnostics_of(node, 'cam_burst')
             deadline = time.monotonic() + 15
             while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
                 executor.spin_once(timeout_sec=0.1)

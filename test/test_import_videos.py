@@ -5,9 +5,8 @@ Round trips through every calibration format, the demo.
 
 from pathlib import Path
 import shutil
-import subprocess
-import sys
 
+from conftest import memo_ros_cli as cli
 import cv2
 import numpy as np
 import pytest
@@ -34,22 +33,10 @@ from memo_ros.tools.import_videos import (
 )
 from memo_ros.tools.simulate import START_NS, simulate
 
-ROOT = Path(__file__).resolve().parent.parent
-CLI_ENTRY = 'import sys; from memo_ros.tools.cli import main; sys.exit(main())'
 DEMO = Path(__file__).resolve().parent.parent.parent / 'shared' / 'data' / 'pose2sim_demo_single'
 FRAMES, WIDTH, HEIGHT = 3, 160, 120
 DISTORTION = [-0.18, 0.05, 0.0011, -0.0017, 0.01]
 POINTS = np.random.default_rng(2).uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 2.0], (200, 3))
-
-
-def cli(*args, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, '-c', CLI_ENTRY, *map(str, args)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
 
 
 def images(bag: Path) -> dict[str, list[tuple[int, int, str, bytes]]]:
