@@ -161,7 +161,7 @@ class ArticulatedTracker:
         self.limit_high = self.anatomy.limit_high
         self.twin_swaps = 0
         self.limb_exchanges = 0
-        self.recoveries = self.recoveries_tried = 0
+        self.recoveries = 0
         self._fields_of: dict | None = None  # the contours the silhouette fields were made from
         self._fields: dict = {}
         self._holding = True  # the silhouette holds the body (not during the heading search)
@@ -499,7 +499,6 @@ class ArticulatedTracker:
             self._last_counts = counts
             return
         if cost > self.usual_cost + s.recover_margin:
-            self.recoveries_tried += 1
             best: tuple[float, ArticulatedEKF, np.ndarray] | None = None
             starts = [(self.ekf.q, np.eye(self.body.n_coordinates))]
             starts += [self.anatomy.exchange(self.ekf.q, pair) for pair in self.anatomy.limbs]
@@ -602,7 +601,8 @@ class ArticulatedTracker:
         if not frame:
             out = []
             every = rig_outline_candidates(cams, self.nodes, rotations, origins)
-            frame['hold'] = [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in every]
+            if self._holds():  # every outline node, for the silhouette's hold (_hold_rows)
+                frame['hold'] = [c.subset(np.all(np.isfinite(c.uv), axis=1)) for c in every]
             for cam, cand in zip(cams, every):
                 near = np.all(np.isfinite(cand.uv), axis=1)
                 if len(
@@ -642,7 +642,7 @@ class ArticulatedTracker:
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
         frame: dict = {}  # the first linearisation's outline test and hold nodes (_candidates)
-        fields = self._silhouettes(contours) if s.hold_sigma_px > 0 and self._holding else {}
+        fields = self._silhouettes(contours) if self._holds() else {}
         # noise per unit of contour length: denser samples each carry less independent information
         density = {
             c: np.sqrt(REFERENCE_SPACING_PX / sample_spacing(t)) for c, t in contours.items()
@@ -751,6 +751,10 @@ class ArticulatedTracker:
             )
 
         return measure
+
+    def _holds(self) -> bool:
+        """Return whether the silhouette holds the body now (on, and not in a heading search)."""
+        return self.settings.hold_sigma_px > 0 and self._holding
 
     def _silhouettes(self, contours: dict[str, np.ndarray]) -> dict:
         """Return the frame's silhouette fields, computed once for all its linearisations."""
