@@ -294,6 +294,28 @@ def test_information_form_update_equals_the_covariance_form_for_a_linear_measure
     assert np.allclose(ekf.q, expected, atol=1e-8)
 
 
+def test_robust_weights_stop_a_few_outlying_measurements_dragging_the_estimate():
+    n = BODY.n_coordinates
+    rng = np.random.default_rng(7)
+    H = np.zeros((300, n))
+    H[:, 6:] = rng.normal(0, 1, (300, n - 6))
+    truth = np.zeros(n)
+    truth[6:] = rng.normal(0, 0.1, n - 6)
+    z = H @ truth + rng.normal(0, 0.01, 300)
+    z[:30] += 0.5  # a tenth of the measurements 50 sigma off (a segmentation fault)
+    sigma = np.full(300, 0.01)
+
+    def estimate(robust: np.ndarray | None) -> np.ndarray:
+        ekf = ArticulatedEKF(ConstantVelocity(BODY))
+        ekf.initialize(np.zeros(n), None, 1.0, 0.5)
+        ekf.update(lambda q: Measurements(H, z - H @ q, sigma, robust), iterations=6, gate=1e9)
+        return ekf.q
+
+    plain, robust = estimate(None), estimate(sigma)
+    assert np.abs(robust - truth).max() < 0.2 * np.abs(plain - truth).max()
+    assert np.allclose(estimate(np.full(300, np.inf)), plain)  # an infinite scale: plain rows
+
+
 def test_tracker_follows_the_moving_arm_from_perfect_silhouettes():
     scenario = make_scenario('studio-arm', BODY, frames=20)
     times = np.arange(20) / scenario.frame_rate

@@ -69,6 +69,17 @@ PARAMS: tuple[Param, ...] = (
         100.0,
     ),
     Param(
+        'robust_scale',
+        0.0,
+        'Cauchy scale of the image forces in units of their noise: a force whose residual is r '
+        'weighs 1 / (1 + (r / (robust_scale sigma))^2) of its plain weight, so contour the pose '
+        'cannot explain (a segmentation fault) stops dragging it; 0 (default) is plain least '
+        'squares, the paper: 1 halved the studio errors but changed the Pose2Sim demo for the '
+        'worse',
+        0.0,
+        100.0,
+    ),
+    Param(
         'sigma_normal',
         0.0,
         'normal force noise (eq. 15), unit-vector units; 0 (default) switches the normal '
@@ -299,6 +310,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
     return TrackerSettings(
         sigma_px=p['sigma_px'],
         sigma_rim_px=p['sigma_rim_px'],
+        robust_scale=p['robust_scale'],
         sigma_normal=p['sigma_normal'],
         search_px=p['search_px'],
         gate_sigma=p['gate_sigma'],

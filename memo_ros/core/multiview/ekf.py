@@ -24,12 +24,15 @@ from memo_ros.core.multiview.motion import ConstantVelocity, retract
 class Measurements:
     """Scalar measurements linearised at a pose.
 
-    Jacobian rows H (m, n) over positions, residuals r, sigmas.
+    Jacobian rows H (m, n) over positions, residuals r, sigmas; optionally a robust scale per row
+    (``robust``, in the units of r): the residual at which the row's weight is halved (Cauchy), inf
+    for a row taken as it is.
     """
 
     H: np.ndarray
     r: np.ndarray
     sigma: np.ndarray
+    robust: np.ndarray | None = None
 
     @classmethod
     def empty(cls, n: int) -> 'Measurements':
@@ -87,7 +90,10 @@ class ArticulatedEKF:
     ) -> UpdateReport:
         """Run the iterated update (eq. 11).
 
-        Relinearise ``measure`` at each iterate, gate, solve in information form.
+        Relinearise ``measure`` at each iterate, gate, solve in information form.  Rows with a
+        robust scale are reweighted at each iterate (iteratively reweighted least squares with
+        Cauchy weights 1 / (1 + (r / scale)^2) on the residual r at that iterate): a measurement
+        the pose cannot explain loses its pull instead of dragging the pose towards it.
         """
         n = self.n
         q0, v0, P0 = self.q, self.v, self.P
@@ -106,10 +112,13 @@ class ArticulatedEKF:
             # the residual the prior alone would leave: r + H (delta so far)
             innovation = m.r + m.H @ delta[:n]
             keep = innovation**2 <= gate**2 * s
+            w = 1.0 / m.sigma**2
+            if m.robust is not None:  # Cauchy weights on the residual at this iterate
+                w = w / (1.0 + (m.r / m.robust) ** 2)
             if keep.all():  # the usual case: no copies of H
-                H, w, used = m.H, 1.0 / m.sigma**2, innovation
+                H, used = m.H, innovation
             else:
-                H, w, used = m.H[keep], 1.0 / m.sigma[keep] ** 2, innovation[keep]
+                H, w, used = m.H[keep], w[keep], innovation[keep]
             H_scaled = H * np.sqrt(w)[:, None]  # H^T W H as one symmetric product
             info = info0.copy()
             info[:n, :n] += H_scaled.T @ H_scaled

@@ -61,6 +61,12 @@ class TrackerSettings:
     sigma_rim_px: float = (
         3.0  # the same across a part's end, where contour smoothing rounds the tips
     )
+    # Cauchy scale of the image forces in units of their noise: a force whose residual at the
+    # current iterate is r weighs 1 / (1 + (r / (robust_scale sigma))^2) of its plain weight, so a
+    # stretch of contour the pose cannot explain (a segmentation fault: a shoulder whose grey
+    # matches the wall cut off the silhouette) stops dragging the pose; 0 = plain least squares
+    # (the paper's forces; the default: 1 and 3 changed the Pose2Sim demo for the worse)
+    robust_scale: float = 0.0
     sigma_normal: float = 0.0  # normal force noise (unit vectors); 0 switches eq. 15 off (k_z from
     # pixel-staircase tangents is biased; it made the arm worse)
     search_px: float = 25.0  # largest image distance of a sample to its node
@@ -562,8 +568,10 @@ class ArticulatedTracker:
         left = max(s.init_iterations if iterations is None else iterations, 1)
         while left > 0:
             ekf.initialize(q, None, sigma_q, sigma_v)
-            report = ekf.update(
-                self._measurement_function(contours, rays, masks), min(left, 5), gate=1e6
+            report = ekf.update(  # a search from a broad prior: every force pulls in full
+                self._measurement_function(contours, rays, masks, robust=False),
+                min(left, 5),
+                gate=1e6,
             )
             left -= 5
             if s.hard_limits and clamp:
@@ -633,15 +641,17 @@ class ArticulatedTracker:
         H[np.arange(len(H)), self.limit_index[active]] = 1.0
         return H, target[active] - v[active], np.full(len(H), self.settings.limit_sigma)
 
-    def _measurement_function(self, contours, rays, masks):
+    def _measurement_function(self, contours, rays, masks, robust: bool = True):
         """measure(q) -> Measurements.
 
-        The forces of eq. 14-15 linearised at q (Jacobians of eq. 9, 16).
+        The forces of eq. 14-15 linearised at q (Jacobians of eq. 9, 16); with ``robust`` (and a
+        positive ``robust_scale``) the image forces carry their Cauchy scales for the update.
         """
         s = self.settings
         n = self.body.n_coordinates
         self._last_counts = (0, 0)
         frame: dict = {}  # the first linearisation's outline test and hold nodes (_candidates)
+        robust_scale = s.robust_scale if robust and s.robust_scale > 0 else np.inf
         fields = self._silhouettes(contours) if self._holds() else {}
         # noise per unit of contour length: denser samples each carry less independent information
         density = {
@@ -652,6 +662,7 @@ class ArticulatedTracker:
             rotations, origins = self.body.forward_kinematics(q)
             chain = chain_axes(self.body, q, rotations, origins, self.affects)
             parts, points, g, rows_r, rows_s, normal_rows = [], [], [], [], [], []
+            rows_robust: list[np.ndarray] = []  # Cauchy scales of the rows so far (inf: none)
             matched = unselected = 0
             cams = [self.cameras[c] for c in contours]
             cands = self._candidates(cams, rays, rotations, origins, frame)
@@ -704,6 +715,7 @@ class ArticulatedTracker:
                 # the smoothing correction is itself uncertain: its size joins the noise
                 sigma = np.where(side, s.sigma_px, s.sigma_rim_px) * density[cam_name]
                 rows_s.append(np.hypot(sigma, cam_rays.bias[sample]))
+                rows_robust.append(robust_scale * rows_s[-1])
                 if s.sigma_normal > 0 and side.any():
                     normals = cand.normal[node][side]
                     Jn = normal_jacobian(
@@ -724,6 +736,7 @@ class ArticulatedTracker:
                     g.append(hold[2])
                     rows_r.append(hold[3])
                     rows_s.append(np.full(len(hold[3]), s.hold_sigma_px))
+                    rows_robust.append(np.full(len(hold[3]), np.inf))
             # eq. 9: m^T H R^-1 L, every camera's image forces at once
             rows_H = (
                 [
@@ -746,9 +759,14 @@ class ArticulatedTracker:
                 rows_s.append(limits[2])
             if not rows_r:
                 return Measurements.empty(n)
-            return Measurements(
-                np.concatenate(rows_H), np.concatenate(rows_r), np.concatenate(rows_s)
-            )
+            r = np.concatenate(rows_r)
+            scales = None
+            if robust_scale < np.inf:  # normal and limit rows (after the forces) are not robust
+                scales = np.full(len(r), np.inf)
+                if rows_robust:
+                    forces = np.concatenate(rows_robust)
+                    scales[: len(forces)] = forces
+            return Measurements(np.concatenate(rows_H), r, np.concatenate(rows_s), scales)
 
         return measure
 
