@@ -764,8 +764,8 @@ class ArticulatedTracker:
             if robust_scale < np.inf:  # normal and limit rows (after the forces) are not robust
                 scales = np.full(len(r), np.inf)
                 if rows_robust:
-                    forces = np.concatenate(rows_robust)
-                    scales[: len(forces)] = forces
+                    force_scales = np.concatenate(rows_robust)
+                    scales[: len(force_scales)] = force_scales
             return Measurements(np.concatenate(rows_H), r, np.concatenate(rows_s), scales)
 
         return measure
