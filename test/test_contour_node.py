@@ -272,8 +272,9 @@ def _run_background_node(
                 while time.monotonic() < end:
                     executor.spin_once(timeout_sec=0.05)
             end = time.monotonic() + 15
-            while (
-                int(values.get('processed', 0)) < sum(f is not None for f in frames)
+            while (  # until every image sent is processed or refused as out of order
+                int(values.get('processed', 0)) + int(values.get('dropped.out_of_order', 0))
+                < sum(f is not None for f in frames)
                 and time.monotonic() < end
             ):
                 executor.spin_once(timeout_sec=0.1)
