@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import pytest
@@ -34,6 +35,30 @@ def memo_ros_cli(*args: object, timeout: float = 120.0) -> subprocess.CompletedP
         text=True,
         timeout=timeout,
     )
+
+
+def wait_until_recording(recorder: subprocess.Popen, topics, timeout: float = 40.0) -> list[str]:
+    """Until a `memo-ros bag record` started with RosEnv.start matched a publisher on each topic.
+
+    Its stderr is read from then on by a thread (and no longer by ``communicate``); the lines read
+    are returned and keep growing.
+    """
+    pipe, recorder.stderr = recorder.stderr, None
+    lines: list[str] = []
+
+    def read() -> None:
+        with pipe:
+            for line in pipe:
+                lines.append(line)
+
+    threading.Thread(target=read, daemon=True).start()
+    deadline = time.monotonic() + timeout
+    while not all(any(line.startswith(f'matched {t} ') for line in lines) for t in topics):
+        assert recorder.poll() is None, f'the recorder ended early:\n{"".join(lines)}'
+        assert time.monotonic() < deadline, f'the recorder matched nothing on:\n{"".join(lines)}'
+        time.sleep(0.1)
+    time.sleep(0.5)  # the reader has matched; the writer's half of the match follows it closely
+    return lines
 
 
 _serial = itertools.count()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import subprocess
 import time
 
+from conftest import wait_until_recording
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -52,21 +53,6 @@ def _start_node(ros_env, camera: str, *params: str) -> subprocess.Popen:
     )
 
 
-def _wait_for_graph(ros_env, topics, timeout=20.0):
-    """Until the node publishes and the recorder subscribes every topic.
-
-    As seen from a third participant.
-    """
-    with ros_session('graph_probe', ros_env.domain_id) as (node, _):
-        deadline = time.monotonic() + timeout
-        while not all(node.count_publishers(t) and node.count_subscribers(t) for t in topics):
-            assert time.monotonic() < deadline, 'contour_node and recorder did not meet'
-            time.sleep(0.2)
-        time.sleep(
-            1.0
-        )  # discovery seen by the probe; give the two peers a moment to match each other
-
-
 def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
     bag = simulate('street-walk', tmp_path / 'street', frames=12, width=320, height=240).bag
     node = _start_node(ros_env, 'cam_street', 'reliable_images:=true', 'background_frames:=6')
@@ -84,8 +70,8 @@ def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
         '--duration',
         60,
     )
-    _wait_for_graph(
-        ros_env, ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges']
+    wait_until_recording(
+        recorder, ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges']
     )
     played = ros_env.run(
         'bag',

@@ -16,6 +16,7 @@ import subprocess
 import threading
 import time
 
+from conftest import wait_until_recording
 import numpy as np
 import pytest
 from sensor_msgs.msg import CameraInfo
@@ -372,7 +373,7 @@ def test_a_corrupt_bag_and_an_unknown_encoding_are_clear_errors_and_the_graph_st
             '--duration',
             120,
         )
-        time.sleep(3.0)
+        wait_until_recording(recorder, ['/memo/joint_states'])
         played = ros_env.run(
             'bag',
             'play',

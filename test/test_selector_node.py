@@ -11,6 +11,7 @@ import signal
 import subprocess
 import time
 
+from conftest import wait_until_recording
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
@@ -360,7 +361,7 @@ def test_studio_arm_bag_the_occluded_arm_is_not_selected_from_the_camera_it_is_h
         ):
             assert time.monotonic() < deadline, 'selector_node and recorder did not meet'
             time.sleep(0.2)
-        time.sleep(1.0)
+    wait_until_recording(recorder, ['/memo/camera_assignment'])
     infos = [f'/{c}/camera_info' for c in sim.cameras]
     played = ros_env.run(
         'bag',

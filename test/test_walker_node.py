@@ -73,7 +73,7 @@ def street_run(tmp_path_factory):
     """One street-walk bag, 640x480 and the default noise, through the launched graph, recorded."""
     import os
 
-    from conftest import RosEnv, next_domain_id
+    from conftest import RosEnv, next_domain_id, wait_until_recording
 
     tmp = tmp_path_factory.mktemp('walker')
     sim = simulate('street-walk', tmp / 'street')
@@ -97,6 +97,7 @@ def street_run(tmp_path_factory):
             500,
         )
         diagnostics = env.start('bag', 'record', '-o', diag, '/diagnostics', '--duration', 300)
+        wait_until_recording(recorder, OUTPUTS, timeout=60)
         _wait_for_graph(
             env,
             OUTPUTS + ('/cam_street/edges',),

@@ -17,6 +17,7 @@ from typing import Callable, Sequence
 from rclpy.executors import Executor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from rclpy.subscription import Subscription
 from rosbags.interfaces import (
     Connection,
     Qos,
@@ -112,15 +113,18 @@ class BagRecorder:
         options: RecordOptions,
         on_subscribe: Callable[[str, str, QoSProfile], None] | None = None,
         on_skip: Callable[[str, str], None] | None = None,
+        on_match: Callable[[str, int], None] | None = None,
     ) -> None:
         self.node = node
         self.out = Path(out)
         self.options = options
         self.on_subscribe = on_subscribe
         self.on_skip = on_skip
+        self.on_match = on_match
+        self.matched: set[str] = set()
         self.wanted = {absolute_topic(t) for t in options.topics}
         self._exclude = re.compile(options.exclude) if options.exclude else None
-        self.subscriptions: dict[str, object] = {}
+        self.subscriptions: dict[str, Subscription] = {}
         self.counts: dict[str, int] = {}
         self.skipped: dict[str, str] = {}
         self.count = 0
@@ -175,6 +179,24 @@ class BagRecorder:
                 if self.on_skip is not None:
                     self.on_skip(topic, reason)
         return added
+
+    def check_matches(self) -> list[str]:
+        """Topics whose subscription matched its first publisher since the last call.
+
+        Matched is what a reader needs before it can receive: seeing a topic in the graph is not
+        enough, the two endpoints may still be exchanging their descriptions.
+        """
+        new = []
+        for topic, subscription in self.subscriptions.items():
+            if topic in self.matched:
+                continue
+            count = subscription.get_publisher_count()
+            if count:
+                self.matched.add(topic)
+                new.append(topic)
+                if self.on_match is not None:
+                    self.on_match(topic, count)
+        return new
 
     def _subscribe(self, topic: str, types: list[str]) -> str | None:
         """Subscribe raw to ``topic`` and register it in the bag.
@@ -274,6 +296,8 @@ def record_until(
             period = ALL_TOPICS_PERIOD if recorder.options.all_topics else DISCOVERY_PERIOD
             next_look = now + period
         executor.spin_once(timeout_sec=0.05)
+        if len(recorder.matched) < len(recorder.subscriptions):
+            recorder.check_matches()
         if status is not None:
             status.show(
                 f'recording: {recorder.count} messages on {len(recorder.subscriptions)} topics, '
@@ -320,9 +344,12 @@ def run_record(args: argparse.Namespace) -> int:
     def skipped(topic: str, reason: str) -> None:
         print(f'bag record: not recording {topic}: {reason}', file=sys.stderr)
 
+    def matched(topic: str, count: int) -> None:
+        print(f'matched {topic} ({count} publisher{"s" * (count != 1)})', file=sys.stderr)
+
     status = StatusLine(progress_enabled(args))
     with ros_session('memo_ros_bag_recorder') as (node, executor), stop_on_signals() as stop:
-        with BagRecorder(node, args.output, options, subscribed, skipped) as recorder:
+        with BagRecorder(node, args.output, options, subscribed, skipped, matched) as recorder:
             reason = record_until(
                 recorder, executor, stop, args.duration, args.idle_timeout, status
             )
