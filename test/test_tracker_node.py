@@ -10,7 +10,8 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-from sensor_msgs.msg import JointState, PointCloud2
+from rclpy.qos import QoSProfile
+from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from test_tracking_core import _silhouette_contours
@@ -214,3 +215,58 @@ def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(r
     latency = [t - sent[(s - T0) // DT] for (t, _), s in zip(processed, stamps)]
     assert max(latency[4:]) < 1.0, latency
     assert values['assignment'].startswith('missing'), values
+
+
+def test_a_frame_whose_images_were_all_lost_is_still_reported(ros_env, tmp_path):
+    """camera_info announces every frame: one no contours reach is reported, not lost unseen."""
+    scenario = make_scenario('studio-arm', BODY)
+    frames = 6
+    q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
+    studio = tmp_path / 'studio.yaml'
+    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(
+        studio
+    )
+    process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.1')
+    cams = [c.name for c in scenario.cameras]
+    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    with ros_session('announcing_feeder', ros_env.domain_id) as (node, executor):
+        reliable = QoSProfile(depth=100)
+        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
+        infos = {c: node.create_publisher(CameraInfo, f'/{c}/camera_info', reliable) for c in cams}
+        processed: list[Header] = []
+        node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
+
+        def spin_until(condition, timeout=30.0) -> None:
+            end = time.monotonic() + timeout
+            while not condition() and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            assert condition(), [(m.stamp.sec, m.stamp.nanosec, m.frame_id) for m in processed]
+
+        spin_until(
+            lambda: all(p.get_subscription_count() for p in [*pubs.values(), *infos.values()])
+        )
+        time.sleep(0.5)
+
+        def send(k: int, images_lost: bool = False) -> None:
+            for cam in cams:
+                info = CameraInfo()
+                info.header.stamp = stamp_from_ns(T0 + k * DT)
+                infos[cam].publish(info)
+                if not images_lost:
+                    pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            end = time.monotonic() + 0.2
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.02)
+
+        for k in range(frames - 1):  # frame 3's images are lost in every contour_node
+            send(k, images_lost=k == 3)
+        spin_until(lambda: len(processed) >= frames - 1)
+        send(frames - 1, images_lost=True)  # the last frame too: no newer frame shows it
+        spin_until(lambda: len(processed) >= frames, timeout=10.0)
+    process.terminate()
+    process.wait(timeout=20)
+    reported = {m.stamp.sec * 10**9 + m.stamp.nanosec: m.frame_id.split(' ')[0] for m in processed}
+    assert sorted(reported) == [T0 + k * DT for k in range(frames)], reported
+    assert reported[T0 + 3 * DT] == 'no_contours'
+    assert reported[T0 + 5 * DT] == 'no_contours'
+    assert [reported[T0 + k * DT] for k in (0, 1, 2, 4)] == ['tracking'] * 4

@@ -22,7 +22,7 @@ from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState, PointCloud2
+from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -289,6 +289,8 @@ PARAMS: tuple[Param, ...] = (
     ),
 )
 SET_POSE_TTL_S = 2.0  # wall time an accepted set_pose waits for the frame that starts from it
+ANNOUNCED_WAIT_S = 2.0  # how long a frame only camera_info announced waits (contour_node's loss)
+INFO_QUEUE_DEPTH = 100  # camera_info is small: a deep queue keeps every frame's announcement
 LATE_STAMPS_KEPT = 512  # stamps of late frames remembered, so each is counted once
 EXPIRY_CHECK_S = 0.02  # how often frames whose join wait expired are looked for
 MISSES_BEFORE_NOT_WAITING = (
@@ -298,9 +300,14 @@ MISSES_BEFORE_NOT_WAITING = (
 
 @dataclass
 class PendingFrame:
-    """Messages of one stamp gathered so far."""
+    """Messages of one stamp gathered so far.
 
-    first_wall: float
+    ``first_wall`` is when its first contours or assignment came (None while only camera_info
+    announced it), ``announced_wall`` when the frame was first heard of.
+    """
+
+    first_wall: float | None
+    announced_wall: float
     contours: dict[str, np.ndarray] = field(default_factory=dict)
     assignment: object | None = None
 
@@ -402,6 +409,20 @@ class TrackerNode(Node):
                 f'/{cam}/contours',
                 self.health.guard(self._contour_callback(cam), f'{cam}/contours callback'),
                 reliable,
+            )
+        # camera_info announces every frame (as to the selector): a frame whose images were lost
+        # in every contour_node still gets its outcome on /memo/processed
+        announcements = QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE,
+            history=HistoryPolicy.KEEP_LAST,
+            depth=INFO_QUEUE_DEPTH,
+        )
+        for cam in self.camera_names:
+            self.create_subscription(
+                CameraInfo,
+                f'/{cam}/camera_info',
+                self.health.guard(self._on_announcement, f'{cam}/camera_info callback'),
+                announcements,
             )
         self.create_subscription(
             DiagnosticArray,
@@ -508,10 +529,11 @@ class TrackerNode(Node):
 
         return on_contours
 
-    def _frame_for(self, stamp: int, what: str) -> PendingFrame | None:
+    def _frame_for(self, stamp: int, what: str, announced: bool = False) -> PendingFrame | None:
         """Return the pending frame of ``stamp`` (call under the lock).
 
-        None (counted) when it is late; a jump back in time resets the filter.
+        None (counted) when it is late; a jump back in time resets the filter. ``announced``: the
+        message is only a camera_info saying the frame exists, which starts no join wait.
         """
         last = self.last_processed_ns
         if last is not None and stamp <= last:
@@ -531,10 +553,25 @@ class TrackerNode(Node):
                 return None
         if self.first_stamp_ns is None:
             self.first_stamp_ns = stamp
+        now = time.monotonic()
         frame = self.pending.get(stamp)
         if frame is None:
-            frame = self.pending[stamp] = PendingFrame(time.monotonic())
+            frame = self.pending[stamp] = PendingFrame(None if announced else now, now)
+        elif frame.first_wall is None and not announced:
+            frame.first_wall = now
         return frame
+
+    def _on_announcement(self, msg: CameraInfo) -> None:
+        """Note the frame a camera_info announces.
+
+        Its images may all be lost before they become contours; it is then reported no_contours
+        (or late, when newer frames were tracked already) instead of vanishing unaccounted.
+        """
+        stamp = stamp_to_ns(msg.header.stamp)
+        with self.lock:
+            if stamp in self.pending or stamp in self.done_stamps or stamp in self.late_stamps:
+                return
+            self._frame_for(stamp, 'camera_info', announced=True)
 
     def _late(self, stamp: int, what: str) -> None:
         """Return a message of a frame already processed or passed over.
@@ -645,10 +682,15 @@ class TrackerNode(Node):
             now = time.monotonic()
             if now - self.idle_since < self.params['join_timeout']:
                 return None
+            join = self.params['join_timeout']
             ready = sorted(
                 s
                 for s, f in self.pending.items()
-                if now - f.first_wall > self.params['join_timeout']
+                if (
+                    now - f.first_wall > join
+                    if f.first_wall is not None
+                    else now - f.announced_wall > max(join, ANNOUNCED_WAIT_S)
+                )
             )
             if not ready:
                 return None
@@ -769,7 +811,8 @@ class TrackerNode(Node):
         if not frame.contours:
             self.health.drop(
                 'no_contours',
-                'a frame had an assignment but no camera contours within join_timeout',
+                'no camera contours came for a frame its camera_info or assignment announced '
+                '(images lost or dropped in every contour_node)',
             )
             return 'no_contours'
         if self.body_silhouettes is not None and not self._measure_body(frame.contours):
