@@ -37,7 +37,14 @@ setup(
     include_package_data=False,
     install_requires=install_requires,
     extras_require={
-        'test': ['pytest>=8', 'ruff>=0.17', 'mypy>=2.4', 'types-PyYAML>=6.0', 'hypothesis>=6.100'],
+        'test': [
+            'pytest>=8',
+            'pytest-xdist>=3.6',  # scripts/test.sh runs the suite on two workers
+            'ruff>=0.17',
+            'mypy>=2.4',
+            'types-PyYAML>=6.0',
+            'hypothesis>=6.100',
+        ],
         # evaluate --keypoints: BlazePose's weights ship inside this wheel; no node imports it
         'keypoints': ['mediapipe==0.10.14'],
     },

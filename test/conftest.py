@@ -1,10 +1,13 @@
 """Shared fixtures.
 
-An isolated DDS environment per test and a runner for `memo-ros` in subprocesses.
+An isolated DDS environment per test and a runner for `memo-ros` in subprocesses; under
+pytest-xdist (scripts/test.sh runs two workers), the longest modules first and an ``exclusive``
+marker for tests that must have the machine to themselves.
 """
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import itertools
 import os
@@ -219,3 +222,87 @@ def ros_env(monkeypatch) -> RosEnv:
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     yield env
     env.kill_all()
+
+
+# --- running under pytest-xdist (scripts/test.sh: -n 2 --dist loadfile --no-loadscope-reorder) ---
+
+# Modules that take longest (seconds on the 2-core CI host, serial), sent to the workers first so
+# that no long one starts last and leaves the other worker idle; the rest follow in their order.
+LONGEST_MODULES = (
+    'test_graph_faults.py',  # ~180
+    'test_tracking_bags.py',  # ~130
+    'test_contour_node.py',  # ~110
+    'test_walking.py',  # ~80
+    'test_fuzz.py',  # ~80
+    'test_walker_node.py',  # ~60
+    'test_multihost.py',  # ~45
+    'test_robustness.py',  # ~40
+)
+
+
+RUN_LOCKS = Path(tempfile.gettempdir()) / 'memo_ros_test_runs'
+
+
+def pytest_configure(config) -> None:
+    if hasattr(config, 'workerinput'):  # an xdist worker: the run's lock files, old ones removed
+        RUN_LOCKS.mkdir(exist_ok=True)
+        for old in RUN_LOCKS.glob('*.*'):
+            with contextlib.suppress(OSError):
+                if time.time() - old.stat().st_mtime > 86400:
+                    old.unlink()
+    config.addinivalue_line(
+        'markers',
+        'exclusive: under pytest-xdist, run while no other test runs (a real-time soak whose '
+        'budget is the whole machine); the other workers wait',
+    )
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Under xdist: the longest modules first, then the rest, ``exclusive`` modules last.
+
+    (A serial run keeps pytest's order.) Exclusive ones go last so that they wait for at most the
+    short test the other worker is on, not for one of the long ones.
+    """
+    if not hasattr(config, 'workerinput'):
+        return
+
+    def rank(item) -> int:
+        if item.get_closest_marker('exclusive'):
+            return len(LONGEST_MODULES) + 1
+        name = item.path.name
+        return LONGEST_MODULES.index(name) if name in LONGEST_MODULES else len(LONGEST_MODULES)
+
+    items.sort(key=rank)  # stable: each module keeps its own order
+
+
+@contextlib.contextmanager
+def _run_lock(config, exclusive: bool):
+    """Hold this xdist run's test lock: shared for a test, exclusive for an ``exclusive`` one.
+
+    Two flock files make a turnstile: an exclusive test takes the gate, so no new test starts,
+    then waits for the running ones to end; a test passes the gate and holds the data lock shared.
+    """
+    run = config.workerinput['testrunuid']
+    gate = os.open(RUN_LOCKS / f'{run}.gate', os.O_CREAT | os.O_RDWR, 0o666)
+    data = os.open(RUN_LOCKS / f'{run}.data', os.O_CREAT | os.O_RDWR, 0o666)
+    try:
+        if exclusive:
+            fcntl.flock(gate, fcntl.LOCK_EX)
+            fcntl.flock(data, fcntl.LOCK_EX)
+        else:
+            fcntl.flock(gate, fcntl.LOCK_SH)
+            fcntl.flock(data, fcntl.LOCK_SH)
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        yield
+    finally:
+        os.close(data)
+        os.close(gate)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Under xdist, run each test (its setup and teardown too) inside the run's lock."""
+    if not hasattr(item.config, 'workerinput'):
+        return (yield)
+    with _run_lock(item.config, item.get_closest_marker('exclusive') is not None):
+        return (yield)

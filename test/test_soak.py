@@ -11,6 +11,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
+# the graph at 30 Hz already takes the whole 2-core host; with another test beside it a frame can
+# go missing without an outcome (a real failure seen at load 6), so under xdist it runs alone
+pytestmark = pytest.mark.exclusive
+
 LOOPS = 15  # 15 passes of 240 frames: 3,600 frames, two minutes at 30 Hz
 SUBJECT_FRAMES = 230  # the studio adds 10 empty frames
 GROWTH_BOUND_MB = (
