@@ -1,14 +1,16 @@
 """Shared fixtures.
 
 An isolated DDS environment per test and a runner for `memo-ros` in subprocesses; under
-pytest-xdist (scripts/test.sh runs two workers), the longest modules first and an ``exclusive``
-marker for tests that must have the machine to themselves.
+pytest-xdist (scripts/test.sh runs two workers), the DDS graph tests one at a time on one worker
+beside the CPU-only ones, and an ``exclusive`` marker for tests that need the machine to
+themselves.
 """
 
 from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import itertools
 import os
 from pathlib import Path
@@ -224,23 +226,26 @@ def ros_env(monkeypatch) -> RosEnv:
     env.kill_all()
 
 
-# --- running under pytest-xdist (scripts/test.sh: -n 2 --dist loadfile --no-loadscope-reorder) ---
+# --- under pytest-xdist (scripts/test.sh: -n 2 --no-loadscope-reorder) ---
 
-# Modules that take longest (seconds on the 2-core CI host, serial), sent to the workers first so
-# that no long one starts last and leaves the other worker idle; the rest follow in their order.
+# Real-time DDS graphs are timing-sensitive: two of them side by side on the 2-core host lost
+# frames (contour_node, selector_node, graph_faults failed at load 10). So every module that starts
+# DDS processes (a test takes ros_env, or the module makes a RosEnv itself) is in one xdist group,
+# run one test at a time on one worker, as before; the other worker takes the CPU-only modules.
+GRAPH_GROUP = 'dds-graph'
+RUN_LOCKS = Path(tempfile.gettempdir()) / 'memo_ros_test_runs'  # flock files of each xdist run
+# Within the graph group the longest modules first (seconds on the CI host, serial), so the
+# shorter ones fill in at the end; ``exclusive`` tests (the soak) last of all.
 LONGEST_MODULES = (
     'test_graph_faults.py',  # ~180
     'test_tracking_bags.py',  # ~130
     'test_contour_node.py',  # ~110
-    'test_walking.py',  # ~80
     'test_fuzz.py',  # ~80
     'test_walker_node.py',  # ~60
     'test_multihost.py',  # ~45
     'test_robustness.py',  # ~40
+    'test_walking.py',  # ~80, CPU only: the first the other worker takes
 )
-
-
-RUN_LOCKS = Path(tempfile.gettempdir()) / 'memo_ros_test_runs'
 
 
 def pytest_configure(config) -> None:
@@ -257,20 +262,46 @@ def pytest_configure(config) -> None:
     )
 
 
-def pytest_collection_modifyitems(config, items) -> None:
-    """Under xdist: the longest modules first, then the rest, ``exclusive`` modules last.
+@functools.cache
+def _starts_dds(module: Path) -> bool:
+    """Whether a test module starts DDS processes: a test takes ros_env, or it makes a RosEnv."""
+    text = module.read_text(encoding='utf-8')
+    return 'ros_env' in text or 'RosEnv(' in text
 
-    (A serial run keeps pytest's order.) Exclusive ones go last so that they wait for at most the
-    short test the other worker is on, not for one of the long ones.
+
+def pytest_xdist_make_scheduler(config, log):
+    """Under xdist: whole modules per worker, and all DDS graph modules as one unit.
+
+    The DDS graph modules form one work unit (one worker, one test at a time); every other module
+    is its own, so that its module fixtures are built once. (xdist's own --dist loadgroup does not
+    work with pytest 9: it renames a node attribute pytest no longer reads.)
+    """
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GraphScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split('::', 1)[0]
+            return GRAPH_GROUP if _starts_dds(config.rootpath / module) else module
+
+    return GraphScheduling(config, log)
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Under xdist: the order the groups are handed out in (a serial run keeps pytest's order).
+
+    The graph group first, as it takes longest; within it and then among the other modules, the
+    longest modules first and ``exclusive`` tests last, where they wait for at most a short test
+    on the other worker.
     """
     if not hasattr(config, 'workerinput'):
         return
 
-    def rank(item) -> int:
-        if item.get_closest_marker('exclusive'):
-            return len(LONGEST_MODULES) + 1
+    def rank(item) -> tuple[int, int]:
         name = item.path.name
-        return LONGEST_MODULES.index(name) if name in LONGEST_MODULES else len(LONGEST_MODULES)
+        longest = LONGEST_MODULES.index(name) if name in LONGEST_MODULES else len(LONGEST_MODULES)
+        if item.get_closest_marker('exclusive'):
+            longest = len(LONGEST_MODULES) + 1
+        return (0 if _starts_dds(item.path) else 1, longest)
 
     items.sort(key=rank)  # stable: each module keeps its own order
 
