@@ -226,15 +226,15 @@ def ros_env(monkeypatch) -> RosEnv:
     env.kill_all()
 
 
-# --- under pytest-xdist (scripts/test.sh: -n 2 --no-loadscope-reorder) ---
+# --- under pytest-xdist (scripts/test.sh: -n 2 --dist loadscope --no-loadscope-reorder) ---
 
 # Real-time DDS graphs are timing-sensitive: two of them side by side on the 2-core host lost
 # frames (contour_node, selector_node, graph_faults failed at load 10). So every module that starts
-# DDS processes (a test takes ros_env, or the module makes a RosEnv itself) is in one xdist group,
-# run one test at a time on one worker, as before; the other worker takes the CPU-only modules.
+# DDS processes (a test takes ros_env, or the module makes a RosEnv itself) is in one xdist work
+# unit, run one test at a time on one worker, as before; the other worker takes the CPU-only ones.
 GRAPH_GROUP = 'dds-graph'
 RUN_LOCKS = Path(tempfile.gettempdir()) / 'memo_ros_test_runs'  # flock files of each xdist run
-# Within the graph group the longest modules first (seconds on the CI host, serial), so the
+# Within the graph unit the longest modules first (seconds on the CI host, serial), so the
 # shorter ones fill in at the end; ``exclusive`` tests (the soak) last of all.
 LONGEST_MODULES = (
     'test_graph_faults.py',  # ~180
@@ -287,9 +287,9 @@ def pytest_xdist_make_scheduler(config, log):
 
 
 def pytest_collection_modifyitems(config, items) -> None:
-    """Under xdist: the order the groups are handed out in (a serial run keeps pytest's order).
+    """Under xdist: the order the work units are handed out in (a serial run keeps pytest's).
 
-    The graph group first, as it takes longest; within it and then among the other modules, the
+    The graph unit first, as it takes longest; within it and then among the other modules, the
     longest modules first and ``exclusive`` tests last, where they wait for at most a short test
     on the other worker.
     """
