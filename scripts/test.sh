@@ -9,12 +9,14 @@ export MPLBACKEND=Agg
 # numpy's BLAS on one thread, as in the nodes (memo_ros/nodes/__init__.py): on a shared 2-core
 # machine a second spinning BLAS thread made the EKF's small products many times slower
 export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1} OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
-# two pytest-xdist workers: the DDS graph tests one at a time on one worker (as before: two
-# real-time graphs side by side lose frames on this 2-core host), the CPU-only modules on the other;
-# test/conftest.py makes the work units; tests marked `exclusive` (the soak) run with nothing beside
-# them. MEMO_TEST_WORKERS=0 runs the suite in this one process.
-.venv/bin/python -m pytest -q -ra --durations=15 \
-  -n "${MEMO_TEST_WORKERS:-2}" --dist loadscope --no-loadscope-reorder "$@"
+# MEMO_TEST_WORKERS=2 runs it on two pytest-xdist workers: the DDS graph tests one at a time on
+# one worker, the CPU-only modules on the other, tests marked `exclusive` (the soak) with nothing
+# beside them (test/conftest.py makes the work units). Off by default: in three such runs on the
+# loaded 2-core host test_contour_node's played bag lost its second frame each time.
+workers=${MEMO_TEST_WORKERS:-0}
+dist=()
+[ "$workers" != 0 ] && dist=(-n "$workers" --dist loadscope --no-loadscope-reorder)
+.venv/bin/python -m pytest -q -ra --durations=15 "${dist[@]}" "$@"
 rc=$?
 if [ "$rc" -eq 5 ]; then
   echo "scripts/test.sh: pytest collected no tests (exit 5); nothing failed" >&2
