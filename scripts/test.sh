@@ -9,11 +9,10 @@ export MPLBACKEND=Agg
 # numpy's BLAS on one thread, as in the nodes (memo_ros/nodes/__init__.py): on a shared 2-core
 # machine a second spinning BLAS thread made the EKF's small products many times slower
 export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1} OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
-# MEMO_TEST_WORKERS=2 runs it on two pytest-xdist workers: the DDS graph tests one at a time on
-# one worker, the CPU-only modules on the other, tests marked `exclusive` (the soak) with nothing
-# beside them (test/conftest.py makes the work units). Off by default: in three such runs on the
-# loaded 2-core host test_contour_node's played bag lost its second frame each time.
-workers=${MEMO_TEST_WORKERS:-0}
+# Two pytest-xdist workers: the DDS graph tests one at a time on one worker, the CPU-only modules
+# on the other, tests marked `exclusive` (the soak) with nothing beside them (test/conftest.py
+# makes the work units). MEMO_TEST_WORKERS=0 runs the suite serially in this one process.
+workers=${MEMO_TEST_WORKERS:-2}
 dist=()
 [ "$workers" != 0 ] && dist=(-n "$workers" --dist loadscope --no-loadscope-reorder)
 .venv/bin/python -m pytest -q -ra --durations=15 "${dist[@]}" "$@"
