@@ -230,21 +230,34 @@ def ros_env(monkeypatch) -> RosEnv:
 
 # Real-time DDS graphs are timing-sensitive: two of them side by side on the 2-core host lost
 # frames (contour_node, selector_node, graph_faults failed at load 10). So every module that starts
-# DDS processes (a test takes ros_env, or the module makes a RosEnv itself) is in one xdist work
-# unit, run one test at a time on one worker, as before; the other worker takes the CPU-only ones.
+# DDS processes (a test takes ros_env, or the module makes a RosEnv itself), except the
+# LOAD_INDEPENDENT ones, is in one xdist work unit, run one test at a time on one worker; the other
+# worker takes the CPU-only and the load-independent modules.
 GRAPH_GROUP = 'dds-graph'
+# DDS modules whose results do not depend on timing, so they run beside the graph unit: replays
+# are paced by the tracker's /memo/processed (memo-ros replay), the others run one-shot commands
+# or wait for one message with a generous timeout
+LOAD_INDEPENDENT = frozenset(
+    {
+        'test_tracking_bags.py',
+        'test_replay.py',
+        'test_cli_errors.py',
+        'test_echo.py',
+        'test_studio.py',
+    }
+)
 RUN_LOCKS = Path(tempfile.gettempdir()) / 'memo_ros_test_runs'  # flock files of each xdist run
 # Within the graph unit the longest modules first (seconds on the CI host, serial), so the
 # shorter ones fill in at the end; ``exclusive`` tests (the soak) last of all.
 LONGEST_MODULES = (
     'test_graph_faults.py',  # ~180
-    'test_tracking_bags.py',  # ~130
+    'test_tracking_bags.py',  # ~130, paced replays: the first the other worker takes
     'test_contour_node.py',  # ~110
     'test_fuzz.py',  # ~80
     'test_walker_node.py',  # ~60
     'test_multihost.py',  # ~45
     'test_robustness.py',  # ~40
-    'test_walking.py',  # ~80, CPU only: the first the other worker takes
+    'test_walking.py',  # ~80, CPU only
 )
 
 
@@ -263,8 +276,14 @@ def pytest_configure(config) -> None:
 
 
 @functools.cache
-def _starts_dds(module: Path) -> bool:
-    """Whether a test module starts DDS processes: a test takes ros_env, or it makes a RosEnv."""
+def _in_graph_unit(module: Path) -> bool:
+    """Whether a test module runs real-time DDS graphs.
+
+    It starts DDS processes (a test takes ros_env, or it makes a RosEnv) and is not
+    LOAD_INDEPENDENT.
+    """
+    if module.name in LOAD_INDEPENDENT:
+        return False
     text = module.read_text(encoding='utf-8')
     return 'ros_env' in text or 'RosEnv(' in text
 
@@ -281,7 +300,7 @@ def pytest_xdist_make_scheduler(config, log):
     class GraphScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             module = nodeid.split('::', 1)[0]
-            return GRAPH_GROUP if _starts_dds(config.rootpath / module) else module
+            return GRAPH_GROUP if _in_graph_unit(config.rootpath / module) else module
 
     return GraphScheduling(config, log)
 
@@ -301,7 +320,7 @@ def pytest_collection_modifyitems(config, items) -> None:
         longest = LONGEST_MODULES.index(name) if name in LONGEST_MODULES else len(LONGEST_MODULES)
         if item.get_closest_marker('exclusive'):
             longest = len(LONGEST_MODULES) + 1
-        return (0 if _starts_dds(item.path) else 1, longest)
+        return (0 if _in_graph_unit(item.path) else 1, longest)
 
     items.sort(key=rank)  # stable: each module keeps its own order
 
