@@ -235,12 +235,15 @@ def ros_env(monkeypatch) -> RosEnv:
 # worker takes the CPU-only and the load-independent modules.
 GRAPH_GROUP = 'dds-graph'
 # DDS modules whose results do not depend on timing, so they run beside the graph unit: replays
-# are paced by the tracker's /memo/processed (memo-ros replay), the others run one-shot commands
+# are paced by the tracker's /memo/processed (memo-ros replay; fuzz and memory score or warm the
+# graph that way and send their bad input as fast as it goes), the others run one-shot commands
 # or wait for one message with a generous timeout
 LOAD_INDEPENDENT = frozenset(
     {
         'test_tracking_bags.py',
         'test_replay.py',
+        'test_fuzz.py',
+        'test_memory.py',
         'test_cli_errors.py',
         'test_echo.py',
         'test_studio.py',
