@@ -15,7 +15,7 @@ import pytest
 from sensor_msgs.msg import JointState, PointCloud2
 from std_srvs.srv import Trigger
 from test_selector_node import Feeder
-from test_tracker_node import _cloud
+from test_tracker_node import _cloud, _studio_arm
 from test_tracking_core import _silhouette_contours
 
 from memo_ros.core.formats.studio import Studio, studio_path
@@ -182,16 +182,6 @@ class Diagnostics:
         while not condition():
             assert time.monotonic() < end, f'timed out: {what} {self.values}'
             self.spin(0.05)
-
-
-def _studio_arm(tmp_path, frames: int, initial: dict | None = None):
-    """Return the studio-arm scenario, its poses and a studio starting at q[0] or ``initial``."""
-    scenario = make_scenario('studio-arm', BODY)
-    q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
-    path = tmp_path / 'studio.yaml'
-    pose = dict(zip(NAMES, map(float, q[0]))) if initial is None else initial
-    Studio('test', scenario.cameras, BODY, 30.0, {}, pose).save(path)
-    return scenario, q, path
 
 
 def _tracker(ros_env, studio, name: str = 'tracker_node') -> subprocess.Popen:

@@ -30,6 +30,16 @@ T0 = 1_800_000_000 * 10**9
 DT = 33_333_333
 
 
+def _studio_arm(tmp_path, frames: int, initial: dict | None = None):
+    """Return the studio-arm scenario, its poses and a studio starting at q[0] or ``initial``."""
+    scenario = make_scenario('studio-arm', BODY)
+    q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
+    path = tmp_path / 'studio.yaml'
+    pose = dict(zip(BODY.coordinate_names, map(float, q[0]))) if initial is None else initial
+    Studio('test', scenario.cameras, BODY, 30.0, {}, pose).save(path)
+    return scenario, q, path
+
+
 def _start_tracker(ros_env, studio_path, *params: str) -> subprocess.Popen:
     return ros_env.start_node(
         'tracker_node', '--params-file', studio_path, *[a for p in params for a in ('-p', p)]
@@ -43,12 +53,7 @@ def _cloud(table, stamp_ns: int) -> PointCloud2:
 
 
 def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path):
-    scenario = make_scenario('studio-arm', BODY)
-    q, _ = scenario.coordinates(np.arange(12) / scenario.frame_rate)
-    studio = tmp_path / 'studio.yaml'
-    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(
-        studio
-    )
+    scenario, q, studio = _studio_arm(tmp_path, 12)
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.05')
     cams = [c.name for c in scenario.cameras]
     with ros_session('tracker_feeder', ros_env.domain_id) as (node, executor):
@@ -154,13 +159,8 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
 
 
 def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(ros_env, tmp_path):
-    scenario = make_scenario('studio-arm', BODY)
     frames = 12
-    q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
-    studio = tmp_path / 'studio.yaml'
-    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(
-        studio
-    )
+    scenario, q, studio = _studio_arm(tmp_path, frames)
     # waiting for the selector's assignment with a long join timeout: a dead selector would cost
     # 2 s per frame if the tracker kept waiting for it
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=true', 'join_timeout:=2.0')
@@ -219,13 +219,8 @@ def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(r
 
 def test_a_frame_whose_images_were_all_lost_is_still_reported(ros_env, tmp_path):
     """camera_info announces every frame: one no contours reach is reported, not lost unseen."""
-    scenario = make_scenario('studio-arm', BODY)
     frames = 6
-    q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
-    studio = tmp_path / 'studio.yaml'
-    Studio('test', scenario.cameras, BODY, 30.0, {}, dict(zip(BODY.coordinate_names, q[0]))).save(
-        studio
-    )
+    scenario, q, studio = _studio_arm(tmp_path, frames)
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.1')
     cams = [c.name for c in scenario.cameras]
     tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
