@@ -569,8 +569,8 @@ class TrackerNode(Node):
         """
         stamp = stamp_to_ns(msg.header.stamp)
         with self.lock:
-            if stamp in self.pending or stamp in self.done_stamps or stamp in self.late_stamps:
-                return
+            if stamp in self.done_stamps or stamp in self.late_stamps:
+                return  # a frame already accounted for: its camera_info is no late message
             self._frame_for(stamp, 'camera_info', announced=True)
 
     def _late(self, stamp: int, what: str) -> None:
@@ -680,9 +680,9 @@ class TrackerNode(Node):
         ready = [s for s in sorted(self.pending) if self._complete(s, self.pending[s])]
         if not ready:
             now = time.monotonic()
-            if now - self.idle_since < self.params['join_timeout']:
-                return None
             join = self.params['join_timeout']
+            if now - self.idle_since < join:
+                return None
             ready = sorted(
                 s
                 for s, f in self.pending.items()
