@@ -93,6 +93,10 @@ def test_graph_benchmark_refuses_bad_rates(ros_env, tmp_path):
     assert done.returncode == 2 and 'rates must be positive' in done.stderr
     done = ros_env.run('benchmark', 'graph', '--bag', tmp_path / 'none')
     assert done.returncode == 2 and 'need the bag' in done.stderr
+    done = ros_env.run('benchmark', 'graph', '--rig', 'both')
+    assert done.returncode == 2 and "unknown rig 'both' for the graph" in done.stderr
+    done = ros_env.run('benchmark', 'graph', '--rig', 'ring4', '--bag', tmp_path / 'none')
+    assert done.returncode == 2 and 'a --bag has its own' in done.stderr
 
 
 def test_restamping_gives_a_frame_one_stamp_and_accounts_for_drops():

@@ -53,8 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         '--rig',
-        default='both',
-        help=f'dance: {", ".join(RIGS)} or both (default)',
+        help=f"dance: {', '.join(RIGS)} or both (default); graph: the simulated bag's rig, "
+        f'{" or ".join(RIGS)} (default {RIGS[0]}; ring4 has 4 cameras)',
     )
     parser.add_argument(
         '--size',
@@ -83,9 +83,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def dance_rig(args: argparse.Namespace) -> str:
+    """Return the dance's ``--rig``: both rigs unless one is named."""
+    return 'both' if args.rig is None else args.rig
+
+
 def command_words(args: argparse.Namespace) -> list[str]:
     """Return this suite's options as command-line words (for the report's command line)."""
-    words = ['--headings', args.headings, '--rig', args.rig, '--size', args.size]
+    words = ['--headings', args.headings, '--rig', dance_rig(args), '--size', args.size]
     words += ['--contours', args.contours, '--jobs', str(args.jobs)]
     for setting in args.tracker:
         words += ['--tracker', setting]
@@ -108,15 +113,16 @@ def measure(args: argparse.Namespace) -> dict:
         raise CliError(f'--headings must be finite numbers, not {args.headings!r}')
     if min(width, height) < 16:
         raise CliError(f'--size must be at least 16x16, not {args.size}')
-    if args.rig not in RIGS + ('both',):
-        raise CliError(f'unknown rig {args.rig!r}; known: {", ".join(RIGS)}, both')
+    rig = dance_rig(args)
+    if rig not in RIGS + ('both',):
+        raise CliError(f'unknown rig {rig!r}; known: {", ".join(RIGS)}, both')
     if args.contours not in CONTOURS:
         raise CliError(f'unknown --contours {args.contours!r}; known: {", ".join(CONTOURS)}')
     if args.frames is not None and args.frames < 1:
         raise CliError('--frames must be at least 1')
     if args.jobs < 1:
         raise CliError('--jobs must be at least 1')
-    rigs = list(RIGS) if args.rig == 'both' else [args.rig]
+    rigs = list(RIGS) if rig == 'both' else [rig]
     return run_dance_benchmark(
         headings,
         rigs,

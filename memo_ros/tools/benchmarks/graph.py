@@ -1,16 +1,17 @@
-"""Latency and throughput of the whole live graph fed a 3-camera studio bag at fixed rates.
+"""Latency and throughput of the whole live graph fed a studio bag at fixed rates.
 
 ``benchmark graph``.
 
-A studio-arm bag (3 cameras, 640x480 mono8) is simulated once into a temporary directory (or given
-with ``--bag``).  For each rate a fresh graph is started as users start it, ``memo-ros launch
-STUDIO`` (one contour_node per camera, selector_node, tracker_node, each its own process), with
-best-effort images as from live cameras.  This process plays the bag's ``/<cam>/image_raw`` (best
-effort) and ``/<cam>/camera_info`` (reliable) with :class:`BagPlayer` at the rate (with a Fast DDS
-shared-memory segment large enough for all cameras, see memo_ros.ros.dds.player_segment), and
-restamps every frame to the wall clock at the moment its first message goes out (all messages of a
-frame share the stamp).  Every output carries its frame's stamp, so a stage's cumulative latency is
-the output's publication time (its DDS source timestamp) minus the stamp: ``/<cam>/contours``,
+A studio-arm bag (640x480 mono8; 3 cameras, or 4 with ``--rig ring4``) is simulated once into a
+temporary directory (or given with ``--bag``).  For each rate a fresh graph is started as users
+start it, ``memo-ros launch STUDIO`` (one contour_node per camera, selector_node, tracker_node,
+each its own process), with best-effort images as from live cameras.  This process plays the bag's
+``/<cam>/image_raw`` (best effort) and ``/<cam>/camera_info`` (reliable) with :class:`BagPlayer`
+at the rate (with a Fast DDS shared-memory segment large enough for all cameras, see
+memo_ros.ros.dds.player_segment), and restamps every frame to the wall clock at the moment its
+first message goes out (all messages of a frame share the stamp).  Every output carries its
+frame's stamp, so a stage's cumulative latency is the output's publication time (its DDS source
+timestamp) minus the stamp: ``/<cam>/contours``,
 ``/memo/camera_assignment``, ``/memo/joint_states`` (end to end) and ``/memo/processed`` (every
 frame the tracker finished, with its outcome).  The first frames (the empty studio the contour
 nodes learn their background from, and the tracker's start) are warm-up and left out of the
@@ -30,6 +31,7 @@ import time
 
 import numpy as np
 
+from memo_ros.core.simulation.scenarios import RIGS
 from memo_ros.tools.benchmarks.graph_figures import SETTLE, rate_figures
 from memo_ros.tools.benchmarks.graph_probe import FrameTrace, Probe, Restamper
 from memo_ros.tools.benchmarks.graph_processes import (
@@ -114,7 +116,14 @@ def command_words(args: argparse.Namespace) -> list[str]:
         ['--loops', str(args.loops)] if args.loops > 1 else []
     )
     frames = FRAMES if args.frames is None else args.frames
-    return words + (['--bag', str(args.bag)] if args.bag else ['--frames', str(frames)])
+    if args.bag:
+        return words + ['--bag', str(args.bag)]
+    return words + ['--frames', str(frames), '--rig', graph_rig(args)]
+
+
+def graph_rig(args: argparse.Namespace) -> str:
+    """Return the simulated bag's rig: ``--rig``, or the orthogonal studio."""
+    return RIGS[0] if args.rig is None else args.rig
 
 
 def parse_rates(text: str) -> list[float]:
@@ -137,10 +146,15 @@ def measure(args: argparse.Namespace) -> dict:
     if frames < 1 or args.warmup < 0 or args.loops < 1:
         raise CliError('--frames and --loops must be at least 1 and --warmup not negative')
     if args.bag is not None:
+        if args.rig is not None:
+            raise CliError("--rig chooses the simulated bag's cameras; a --bag has its own")
         studio = args.bag.with_name(args.bag.name + '.yaml')
         if not args.bag.exists() or not studio.is_file():
             raise CliError(f'need the bag {args.bag} and its studio file {studio}')
-    return run_graph_benchmark(rates, frames, args.warmup, args.bag, loops=args.loops)
+    rig = graph_rig(args)
+    if rig not in RIGS:
+        raise CliError(f'unknown rig {rig!r} for the graph; known: {", ".join(RIGS)}')
+    return run_graph_benchmark(rates, frames, args.warmup, args.bag, loops=args.loops, rig=rig)
 
 
 def run_rate(
@@ -324,8 +338,12 @@ def run_graph_benchmark(
     bag: Path | None = None,
     domain_id: int | None = None,
     loops: int = 1,
+    rig: str = RIGS[0],
 ) -> dict:
-    """Simulate the bag once (unless given), then run a fresh graph at every rate; the report."""
+    """Simulate the bag once (unless given), then run a fresh graph at every rate; the report.
+
+    ``rig`` (:data:`RIGS`) is the simulated studio's cameras.
+    """
     from memo_ros.core.formats.studio import Studio
     from memo_ros.core.simulation.imaging import ImagingOptions
     from memo_ros.ros.dds import player_segment, player_segment_bytes
@@ -347,6 +365,7 @@ def run_graph_benchmark(
                 width=SIZE[0],
                 height=SIZE[1],
                 options=ImagingOptions(),
+                rig=rig,
             ).bag
         studio_file = bag.with_name(bag.name + '.yaml')
         studio = Studio.load(studio_file)
@@ -380,7 +399,7 @@ def run_graph_benchmark(
     return {
         'cpus': len(os.sched_getaffinity(0)),
         'bag': 'simulated' if simulated else str(bag),
-        'scenario': SCENARIO if simulated else studio.name,
+        'scenario': f'{SCENARIO}, {rig} rig' if simulated else studio.name,
         'cameras': cameras,
         'size': size,
         'bag_frames': images,
