@@ -53,11 +53,14 @@ def test_tracker_settings_given_on_the_command_line_reach_the_tracker_and_the_re
         frames=3,
         size=(160, 120),
         contours='silhouettes',
-        overrides=tracker_overrides(['hold_sigma_px=2', 'recover_iterations=3']),
+        overrides=tracker_overrides(
+            ['hold_sigma_px=0', 'hold_hull=false', 'recover_iterations=3']
+        ),
     )
-    assert report['tracker'] == {'hold_sigma_px': 2.0, 'recover_iterations': 3}
+    assert report['tracker'] == {'hold_sigma_px': 0.0, 'hold_hull': False, 'recover_iterations': 3}
     print_dance_benchmark(report)
-    assert 'TrackerSettings(hold_sigma_px=2.0, recover_iterations=3)' in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert 'TrackerSettings(hold_sigma_px=0.0, hold_hull=False, recover_iterations=3)' in out
 
 
 def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
@@ -108,6 +111,7 @@ def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
         (('--jobs', '0'), '--jobs must be at least 1'),
         (('--tracker', 'nonsense=1'), "--tracker 'nonsense=1': not a numeric TrackerSettings"),
         (('--tracker', 'hold_sigma_px=wide'), "'wide' is not a float"),
+        (('--tracker', 'hold_hull=maybe'), "'maybe' is not true or false"),
         (('--tracker', 'recover_margin=-1'), 'must be finite and not negative'),
     ],
 )

@@ -47,6 +47,26 @@ def test_only_nodes_beyond_the_tolerance_are_pulled_and_no_further_than_the_cap(
     assert np.allclose(direction, [[1.0, 0.0], [1.0, 0.0]], atol=0.05)
 
 
+def test_the_hull_holds_outside_the_person_but_not_in_a_part_the_segmentation_missed():
+    # a U: two legs joined at the top, the segmentation lost what is between them
+    mask = np.zeros((480, 640), bool)
+    mask[150:350, 200:240] = True
+    mask[150:350, 280:320] = True
+    mask[150:190, 200:320] = True
+    camera = studio_cameras()[0]
+    table = occluding_contours(silhouette_outlines(mask))
+    gap, beside = [260.0, 300.0], [360.0, 300.0]
+    tight = SilhouetteField.from_contours(camera, table)
+    hull = SilhouetteField.from_contours(camera, table, hull=True)
+    assert tight is not None and hull is not None
+    _, distance, _ = tight.lookup(np.array([gap, beside]))
+    assert distance[0] == pytest.approx(20.0, abs=1.5) and distance[1] == pytest.approx(
+        40, abs=1.5
+    )
+    _, distance, _ = hull.lookup(np.array([gap, beside]))
+    assert distance[0] == 0.0 and distance[1] == pytest.approx(40.0, abs=1.5)
+
+
 def test_no_contour_makes_no_field():
     camera: Camera = studio_cameras()[0]
     assert SilhouetteField.from_contours(camera, occluding_contours([])) is None
@@ -90,7 +110,9 @@ def _hand_error_after(settings: TrackerSettings, frames: int = 10) -> float:
 def test_the_silhouette_pulls_back_an_arm_no_sample_reaches():
     off = {'recover_margin': 0.0, 'limb_exchange': 0.0}
     assert _hand_error_after(TrackerSettings(hold_sigma_px=0.0, **off)) > 0.3
-    assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, **off)) < 0.05
+    assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, hold_hull=False, **off)) < 0.05
+    # the convex hull (the default region) is the weaker condition: the arm comes back later
+    assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, **off), frames=20) < 0.05
 
 
 def test_a_lost_limb_is_searched_again_through_a_fast_dance():

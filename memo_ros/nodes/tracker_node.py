@@ -249,11 +249,10 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'limb_exchange',
-        0.0,
+        0.5,
         'rad a pair of limbs (legs, arms) changes its left-right difference by before it is tried '
-        'exchanged, left for right; the exchange is kept when it fits the contours better (a fast '
-        'kick seen from the side); 0 (default) never tries: on noisy studio-arm it exchanged '
-        'wrongly',
+        'exchanged, left for right; the exchange is kept when it fits the contours better, the '
+        "silhouette's hold included (a fast kick seen from the side); 0 never tries",
         0.0,
         10.0,
     ),
@@ -269,12 +268,20 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'hold_sigma_px',
-        0.0,
+        2.0,
         "noise (px) of the silhouette's hold on a model outline node that projects outside a "
-        "camera's silhouette: the node is pulled back; 0 (default) switches the hold off: on the "
-        "Pose2Sim demo's real silhouettes 2 pulled the legs 350-500 mm off",
+        "camera's silhouette (or its convex hull, hold_hull): the node is pulled back, so a limb "
+        'whose contour a neighbour took cannot stay where nothing is seen; 0 switches it off',
         0.0,
         100.0,
+    ),
+    Param(
+        'hold_hull',
+        True,
+        "the hold's region is each camera's convex hull of its contours (true): a part the "
+        'segmentation missed inside the outline is not pulled; false holds to the silhouette '
+        "itself, for exact silhouettes only (on the Pose2Sim demo's real ones it pulled the legs "
+        '350-500 mm off)',
     ),
     Param(
         'max_lag',
@@ -334,6 +341,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         limb_exchange=p['limb_exchange'],
         recover_margin=p['recover_margin'],
         hold_sigma_px=p['hold_sigma_px'],
+        hold_hull=p['hold_hull'],
         process_noise=ProcessNoise(
             p['process_noise_translation'],
             p['process_noise_root_rotation'],

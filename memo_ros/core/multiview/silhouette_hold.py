@@ -9,6 +9,14 @@ lies inside the silhouette of every camera that sees it, so a model outline node
 outside a camera's silhouette is wrong by at least its distance to it.  That distance, beyond a
 tolerance, is a one-sided measurement (like the joint ranges): zero inside, and outside a pull
 along the distance's gradient towards the silhouette.
+
+A real segmentation misses parts of the person (dark shorts against a dark floor), and a hold on
+the silhouette itself pulls the model's parts into what is left.  The weaker condition holds
+there too: every surface point lies inside the convex hull of every silhouette that sees it, and a
+part the segmentation missed between the others is still inside that hull.  So the hold can use
+each camera's convex hull of its contours instead (``hull``): it still pulls in a limb left where
+nothing is (beside or above the person), and no longer one that the silhouette lacks inside its
+outline.
 """
 
 from __future__ import annotations
@@ -42,15 +50,20 @@ class SilhouetteField:
 
     @classmethod
     def from_contours(
-        cls, camera: Camera, table: np.ndarray, scale: float = SCALE
+        cls, camera: Camera, table: np.ndarray, scale: float = SCALE, hull: bool = False
     ) -> 'SilhouetteField | None':
         """Rasterise a camera's closed occluding contours (holes by the even-odd rule).
 
-        None without a contour of at least three samples.
+        With ``hull``, the convex hull of all its contour samples instead.  None without a contour
+        of at least three samples.
         """
         x, y = np.asarray(table['x'], float), np.asarray(table['y'], float)
         if len(x) < 3:
             return None
+        ids = np.asarray(table['contour'])
+        if hull:
+            corners = cv2.convexHull(np.stack([x, y], -1).astype(np.float32))[:, 0].astype(float)
+            x, y, ids = corners[:, 0], corners[:, 1], np.zeros(len(corners), np.uint32)
         x0 = max(float(np.floor(x.min() - MARGIN_PX)), 0.0)
         y0 = max(float(np.floor(y.min() - MARGIN_PX)), 0.0)
         x1 = min(float(np.ceil(x.max() + MARGIN_PX)), float(camera.width))
@@ -59,7 +72,6 @@ class SilhouetteField:
         h = max(int(np.ceil((y1 - y0) * scale)), 2)
         # pixel centres at integers: a full-resolution pixel edge u maps to (u - x0) * scale - 0.5
         fixed = np.stack([(x - x0) * scale - 0.5, (y - y0) * scale - 0.5], -1) * (1 << _SHIFT)
-        ids = np.asarray(table['contour'])
         cuts = np.flatnonzero(np.diff(ids)) + 1
         polygons = [np.round(p).astype(np.int32) for p in np.split(fixed, cuts) if len(p) >= 3]
         if not polygons:
@@ -108,15 +120,15 @@ class SilhouetteField:
 
 
 def silhouette_fields(
-    cameras: dict[str, Camera], contours: dict[str, np.ndarray]
+    cameras: dict[str, Camera], contours: dict[str, np.ndarray], hull: bool = False
 ) -> dict[str, SilhouetteField]:
     """Return each camera's :class:`SilhouetteField` from its contour table.
 
-    Cameras without a contour are left out.
+    Of the contours' convex hull with ``hull``.  Cameras without a contour are left out.
     """
     fields = {}
     for name, table in contours.items():
-        field = SilhouetteField.from_contours(cameras[name], table)
+        field = SilhouetteField.from_contours(cameras[name], table, hull=hull)
         if field is not None:
             fields[name] = field
     return fields

@@ -72,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action='append',
         default=[],
         metavar='NAME=VALUE',
-        help='dance: a TrackerSettings field other than its default, e.g. hold_sigma_px=2 '
+        help='dance: a TrackerSettings field other than its default, e.g. hold_sigma_px=0 or '
+        'hold_hull=false '
         '(repeatable; default: none, the tracker as it ships)',
     )
     parser.add_argument(
@@ -135,7 +136,7 @@ def measure(args: argparse.Namespace) -> dict:
 
 
 def tracker_overrides(words: list[str]) -> dict:
-    """Return {field: value} from NAME=VALUE words naming numeric TrackerSettings fields."""
+    """Return {field: value} from NAME=VALUE words naming TrackerSettings numbers or flags."""
     from memo_ros.core.multiview.tracking import TrackerSettings
     from memo_ros.tools.cli import CliError
 
@@ -144,8 +145,15 @@ def tracker_overrides(words: list[str]) -> dict:
     for word in words:
         name, _, text = word.partition('=')
         default = getattr(defaults, name, None)
-        if isinstance(default, bool) or not isinstance(default, (int, float)):
-            raise CliError(f'--tracker {word!r}: not a numeric TrackerSettings field')
+        if isinstance(default, bool):
+            if text.lower() not in ('true', 'false'):
+                raise CliError(f'--tracker {word!r}: {text!r} is not true or false')
+            out[name] = text.lower() == 'true'
+            continue
+        if not isinstance(default, (int, float)):
+            raise CliError(
+                f'--tracker {word!r}: not a numeric TrackerSettings field (nor a true/false one)'
+            )
         try:
             value = type(default)(text)
         except ValueError:
