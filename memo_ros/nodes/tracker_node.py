@@ -258,11 +258,11 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'recover_margin',
-        0.0,
+        0.3,
         "misfit (sigma^2 per contour sample) above the track's running usual at which the pose, "
         'and the pose with each pair of limbs exchanged, are refitted from a broad prior and the '
-        'best kept (a lost limb re-initialised); 0 (default) never re-searches; 1 with '
-        'hold_sigma_px 2 followed studio-dance',
+        'best kept (a lost limb re-initialised; such a frame costs about four usual ones); 0 '
+        'never re-searches',
         0.0,
         100.0,
     ),
