@@ -105,7 +105,7 @@ class TrackerSettings:
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
     limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
-    recover_margin: float = 0.3  # misfit (sigma^2 / sample) over the usual that starts a search
+    recover_margin: float = 0.0  # misfit (sigma^2 / sample) over the usual that starts a search
     recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
     recover_memory: float = 0.9  # per-frame factor of the running usual misfit
     hold_sigma_px: float = 2.0  # noise of the silhouette's hold on a node outside it (0: off)
