@@ -5,6 +5,10 @@ The report has every figure with sane values (no timing asserted).
 
 from __future__ import annotations
 
+from pathlib import Path
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -56,3 +60,18 @@ def test_a_tiny_run_reports_each_camera_count_and_the_slope(capsys):
     assert report['ms_per_camera'] == pytest.approx(ring[1]['median_ms'] - ring[0]['median_ms'])
     print_tracker_benchmark(report)
     assert 'each added camera (1,000 points) costs' in capsys.readouterr().out
+
+
+def test_tracker_settings_are_named_in_the_report_and_bad_ones_refused(capsys):
+    report = run_tracker_benchmark(cameras=(3,), frames=2, densities=())
+    print_tracker_benchmark(report | {'tracker': {'hold_sigma_px': 0.0}})
+    assert 'TrackerSettings(hold_sigma_px=0.0)' in capsys.readouterr().out
+    done = subprocess.run(
+        [sys.executable, '-m', 'memo_ros.tools.cli', 'benchmark', 'tracker', '--tracker', 'x=1'],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and 'not a numeric TrackerSettings' in lines[0]

@@ -60,9 +60,8 @@ def test_the_hull_holds_outside_the_person_but_not_in_a_part_the_segmentation_mi
     hull = SilhouetteField.from_contours(camera, table, hull=True)
     assert tight is not None and hull is not None
     _, distance, _ = tight.lookup(np.array([gap, beside]))
-    assert distance[0] == pytest.approx(20.0, abs=1.5) and distance[1] == pytest.approx(
-        40, abs=1.5
-    )
+    assert distance[0] == pytest.approx(20.0, abs=1.5)
+    assert distance[1] == pytest.approx(40.0, abs=1.5)
     _, distance, _ = hull.lookup(np.array([gap, beside]))
     assert distance[0] == 0.0 and distance[1] == pytest.approx(40.0, abs=1.5)
 

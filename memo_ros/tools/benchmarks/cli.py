@@ -116,13 +116,17 @@ def _suite(name: str):
         )
 
         def measure_tracker(args: argparse.Namespace) -> dict:
+            from memo_ros.core.multiview.tracking import TrackerSettings
             from memo_ros.tools.cli import CliError
 
             try:
                 cameras = parse_cameras(args.cameras)
             except ValueError as exc:
                 raise CliError(str(exc)) from None
-            return run_tracker_benchmark(repeat=args.repeat, cameras=cameras)
+            overrides = bench_dance.tracker_overrides(args.tracker)
+            return run_tracker_benchmark(
+                repeat=args.repeat, settings=TrackerSettings(**overrides), cameras=cameras
+            ) | {'tracker': overrides}
 
         return measure_tracker, with_command(print_tracker_benchmark)
     if name == 'walker':
@@ -166,5 +170,7 @@ def command_line(args: argparse.Namespace) -> str:
         )  # that suite has no repeats
         if args.suite == 'tracker':
             options += ['--cameras', args.cameras]
+            for setting in args.tracker:
+                options += ['--tracker', setting]
     words = ['memo-ros', 'benchmark', args.suite, *options] + (['--json'] if args.json else [])
     return shlex.join(words)

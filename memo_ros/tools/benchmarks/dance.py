@@ -72,9 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action='append',
         default=[],
         metavar='NAME=VALUE',
-        help='dance: a TrackerSettings field other than its default, e.g. hold_sigma_px=0 or '
-        'hold_hull=false '
-        '(repeatable; default: none, the tracker as it ships)',
+        help='dance and tracker: a TrackerSettings field other than its default, e.g. '
+        'hold_sigma_px=0 or hold_hull=false (repeatable; default: none, the tracker as it ships)',
     )
     parser.add_argument(
         '--jobs',

@@ -161,10 +161,11 @@ def run_tracker_benchmark(
 
 def print_tracker_benchmark(report: dict) -> None:
     """One row per camera count and contour density, then the cost per added camera."""
+    settings = ', '.join(f'{k}={v}' for k, v in report.get('tracker', {}).items())
     print(
-        f'tracker update per frame, {report["parts"]} parts, BLAS threads '
-        f'{report["blas_threads"]}; target {report["target_ms"]:.0f} ms at 1,000 points per '
-        'camera from 3 cameras (studio) and from 6 (ring)'
+        f'tracker update per frame, TrackerSettings({settings}), {report["parts"]} parts, BLAS '
+        f'threads {report["blas_threads"]}; target {report["target_ms"]:.0f} ms at 1,000 points '
+        'per camera from 3 cameras (studio) and from 6 (ring)'
     )
     print(
         f'{"rig":6} {"cameras":>7} {"points/camera":>13} {"frames":>6} {"median ms":>10} '
