@@ -103,12 +103,12 @@ class TrackerSettings:
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
-    limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
+    limb_exchange: float = 0.0  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
     recover_margin: float = 0.0  # misfit (sigma^2 / sample) over the usual that starts a search
     recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
     recover_memory: float = 0.9  # per-frame factor of the running usual misfit
-    hold_sigma_px: float = 2.0  # noise of the silhouette's hold on a node outside it (0: off)
+    hold_sigma_px: float = 0.0  # noise of the silhouette's hold on a node outside it (0: off)
     hold_hull: bool = True  # hold within each camera's convex hull of its contours, not the
     # silhouette itself: a part the segmentation missed inside the person's outline is not pulled
     hold_tolerance_px: float = 2.0  # how far outside the silhouette a node may lie unpulled
