@@ -107,11 +107,21 @@ def _hand_error_after(settings: TrackerSettings, frames: int = 10) -> float:
 
 
 def test_the_silhouette_pulls_back_an_arm_no_sample_reaches():
-    off = {'recover_margin': 0.0, 'limb_exchange': 0.0}
+    off = {'recover_margin': 0.0, 'limb_exchange': 0.0, 'limb_search': 0.0}
     assert _hand_error_after(TrackerSettings(hold_sigma_px=0.0, **off)) > 0.3
     assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, hold_hull=False, **off)) < 0.05
     # the convex hull (the default region) is the weaker condition: the arm comes back later
     assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, **off), frames=20) < 0.05
+
+
+def test_a_start_finds_an_arm_its_given_pose_has_elsewhere():
+    """The limb search at a start (limb_search.py) puts the arm where the contours see it.
+
+    Without the hold, which alone would take 10 frames or more to pull it back.
+    """
+    off = {'recover_margin': 0.0, 'limb_exchange': 0.0, 'hold_sigma_px': 0.0}
+    assert _hand_error_after(TrackerSettings(limb_search=0.0, **off), frames=1) > 0.3
+    assert _hand_error_after(TrackerSettings(**off), frames=1) < 0.05
 
 
 def test_a_lost_limb_is_searched_again_through_a_fast_dance():

@@ -38,6 +38,7 @@ from memo_ros.core.multiview.kinematic_jacobian import (
     normal_jacobian,
     projected_rows,
 )
+from memo_ros.core.multiview.limb_search import limb_postures, posture_scores
 from memo_ros.core.multiview.model_nodes import model_nodes
 from memo_ros.core.multiview.motion import (
     ConstantVelocity,
@@ -47,6 +48,9 @@ from memo_ros.core.multiview.motion import (
 from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fields
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
+LIMB_REFINE_STARTS = 2  # a limb's best postures on the cheap score refined by the update
+LIMB_REFINE_ITERATIONS = 3
+LIMB_REFINE_SIGMA = 0.3  # rad, the prior of a refined limb posture (every joint)
 TWIN_CHECK_FRAMES = 3  # frames a decided leader is checked against its twin
 REFERENCE_SPACING_PX = (
     2.0  # the sample spacing the noise parameters refer to (contour_node's contour_step)
@@ -103,12 +107,14 @@ class TrackerSettings:
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
-    limb_exchange: float = 0.0  # rad a pair's left-right difference moves before a try exchanged
+    limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
     recover_margin: float = 0.0  # misfit (sigma^2 / sample) over the usual that starts a search
+    limb_search: float = 0.1  # sigma^2 per sample a limb's re-found posture must fit better by at
+    # a start (limb_search.py); 0: a start keeps its limbs where the pose put them
     recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
     recover_memory: float = 0.9  # per-frame factor of the running usual misfit
-    hold_sigma_px: float = 0.0  # noise of the silhouette's hold on a node outside it (0: off)
+    hold_sigma_px: float = 2.0  # noise of the silhouette's hold on a node outside it (0: off)
     hold_hull: bool = True  # hold within each camera's convex hull of its contours, not the
     # silhouette itself: a part the segmentation missed inside the person's outline is not pulled
     hold_tolerance_px: float = 2.0  # how far outside the silhouette a node may lie unpulled
@@ -141,6 +147,7 @@ class FrameResult:
     twin_swaps: int = 0  # times the twin won and took the pose's place, since the start
     limb_exchanges: int = 0  # times a pair of limbs fitted better exchanged, since the start
     recoveries: int = 0  # times a re-search from a broad prior fitted better, since the start
+    limbs_found: int = 0  # limbs a start moved to a posture of the limb search, since the start
 
 
 class ArticulatedTracker:
@@ -170,6 +177,8 @@ class ArticulatedTracker:
         self.twin_swaps = 0
         self.limb_exchanges = 0
         self.recoveries = 0
+        self.limbs_found = 0  # limbs a start moved to a posture that fits better (_search_limbs)
+        self.limb_postures = limb_postures(body)
         self._fields_of: dict | None = None  # the contours the silhouette fields were made from
         self._fields: dict = {}
         self._holding = True  # the silhouette holds the body (not during the heading search)
@@ -326,6 +335,7 @@ class ArticulatedTracker:
             self.twin_swaps,
             self.limb_exchanges,
             self.recoveries,
+            self.limbs_found,
         )
 
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
@@ -833,14 +843,20 @@ class ArticulatedTracker:
         sigma_q[:3] = s.init_sigma_translation
         sigma_v = np.full(self.body.n_coordinates, 0.5)
         sigma_v[:3] = 0.3
+        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
         if self.pending_pose is not None:
-            self.ekf.initialize(self.pending_pose, None, sigma_q, sigma_v)
+            start = self.pending_pose
+            if s.limb_search > 0:  # the given pose's limbs need not be where the person's are
+                start, moved = self._search_limbs(start, contours, rays, masks)
+                if moved and s.twin_evidence > 0:
+                    start, moved = self._better_of_twins(start, moved, contours, rays, masks)
+                self.limbs_found += moved
+            self.ekf.initialize(start, None, sigma_q, sigma_v)
             return
         centre = triangulate_centre(
             [self.cameras[c] for c in contours], [contours[c] for c in contours]
         )
         neutral = self.body.neutral()
-        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
         samples = sum(len(t) for t in contours.values())
         project = self.anatomy.project if s.hard_limits else np.asarray
         candidates: list[tuple[float, np.ndarray, np.ndarray]] = []
@@ -866,8 +882,100 @@ class ArticulatedTracker:
             if best is None or cost < best[0]:
                 best = (cost, self.ekf.q.copy(), other)
         assert best is not None
-        self._start_twin = best[2]
-        self.ekf.initialize(best[1], None, sigma_q, sigma_v)
+        start, self._start_twin = best[1], best[2]
+        if s.limb_search > 0:  # the start's standing posture need not be the person's
+            found, moved = self._search_limbs(start, contours, rays, masks)
+            if moved:
+                start, self._start_twin = found, project(self.anatomy.twin(found))
+                self.limbs_found += moved
+        self.ekf.initialize(start, None, sigma_q, sigma_v)
+
+    def _search_limbs(self, q: np.ndarray, contours, rays, masks) -> tuple[np.ndarray, int]:
+        """Return ``q`` with each limb moved to the posture that fits the frame (limb_search.py).
+
+        And how many limbs moved.
+
+        Round by round, the limb whose best canonical posture gains most on the cheap score is
+        refined from its best two postures by the update (``LIMB_REFINE_ITERATIONS``) and the
+        result kept if its robust misfit is ``limb_search`` per sample below the pose's; a kept
+        limb is not tried again.
+        """
+        s = self.settings
+        samples = sum(len(t) for t in contours.values())
+        names = list(contours)
+        cams = [self.cameras[c] for c in names]
+        uv = [rays[c].uv for c in names]
+        fields = self._silhouettes(contours)  # (the hold's fields, whether or not it holds)
+        field_list = [fields.get(c) for c in names]
+        cost = self._fit_cost(q, contours, rays, masks, samples)
+        left = list(self.limb_postures)
+        while left:
+            gains = []
+            for postures in left:
+                poses = np.vstack([q, postures.apply(q)])
+                scores = posture_scores(
+                    self.body, self.nodes, cams, uv, field_list, poses, postures.parts
+                )
+                order = np.argsort(scores[1:])[:LIMB_REFINE_STARTS] + 1
+                gains.append((scores[0] - scores[order[0]], postures, poses[order]))
+            kept = None
+            for gain, postures, starts in sorted(gains, key=lambda g: -g[0]):
+                if gain <= 0:
+                    break
+                for start in starts:
+                    trial = self._refined_from(start, contours, rays, masks)
+                    trial_cost = self._fit_cost(trial, contours, rays, masks, samples)
+                    if trial_cost < cost - s.limb_search * samples and (
+                        kept is None or trial_cost < kept[0]
+                    ):
+                        kept = (trial_cost, trial, postures)
+                if kept is not None:
+                    break
+            if kept is None:
+                break
+            cost, q, done = kept
+            left.remove(done)
+        return q, len(self.limb_postures) - len(left)
+
+    def _better_of_twins(
+        self, found: np.ndarray, moved: int, contours, rays, masks
+    ) -> tuple[np.ndarray, int]:
+        """Return the given pose with its limbs found, or its twin so treated if it fits better.
+
+        With the number of limbs moved in the pose returned.
+
+        Limbs found for a pose given the wrong way round fit its silhouettes as well as they can
+        within the ranges, and its twin, with the mirrored limbs bent the wrong way and clamped,
+        then loses every later comparison: so the twin of the given pose gets the same search,
+        and the start is the better of the two by ``twin_evidence`` per sample.
+        """
+        samples = sum(len(t) for t in contours.values())
+        given = self.pending_pose
+        assert given is not None
+        twin, twin_moved = self._search_limbs(
+            self.anatomy.project(self.anatomy.twin(given)), contours, rays, masks
+        )
+        own = self._fit_cost(found, contours, rays, masks, samples)
+        other = self._fit_cost(twin, contours, rays, masks, samples)
+        if other < own - self.settings.twin_evidence * samples:
+            self.twin_swaps += 1
+            return twin, twin_moved
+        return found, moved
+
+    def _refined_from(self, q: np.ndarray, contours, rays, masks) -> np.ndarray:
+        """Return ``q`` after LIMB_REFINE_ITERATIONS updates from a broad prior, in the ranges."""
+        ekf = ArticulatedEKF(self.model)
+        sigma_q = np.full(len(q), LIMB_REFINE_SIGMA)
+        sigma_q[:3] = self.settings.init_sigma_translation
+        ekf.initialize(q, None, sigma_q, np.full(len(q), 0.5))
+        ekf.update(
+            self._measurement_function(contours, rays, masks),
+            LIMB_REFINE_ITERATIONS,
+            self.settings.gate_sigma,
+        )
+        if self.settings.hard_limits:
+            self._clamp(ekf)
+        return ekf.q.copy()
 
 
 def _mapped_covariance(P: np.ndarray, M: np.ndarray) -> np.ndarray:
