@@ -249,11 +249,10 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'limb_exchange',
-        0.0,
+        0.5,
         'rad a pair of limbs (legs, arms) changes its left-right difference by before it is tried '
         'exchanged, left for right; the exchange is kept when it fits the contours better, the '
-        "silhouette's hold included (a fast kick seen from the side); 0 (default) never tries; "
-        '0.5 with hold_sigma_px 2 followed studio-dance best',
+        "silhouette's hold included (a fast kick seen from the side); 0 never tries",
         0.0,
         10.0,
     ),
@@ -269,13 +268,21 @@ PARAMS: tuple[Param, ...] = (
         100.0,
     ),
     Param(
-        'hold_sigma_px',
+        'limb_search',
+        0.1,
+        'at a start (the studio initial_pose, a restart, the silhouettes), each limb is tried in '
+        'a few canonical postures with the rest of the body kept, the best refined, and the '
+        'posture kept when it fits better by this misfit (sigma^2 per contour sample): a tracker '
+        "started while an arm is raised finds it; 0 keeps the start pose's limbs",
         0.0,
+        10.0,
+    ),
+    Param(
+        'hold_sigma_px',
+        2.0,
         "noise (px) of the silhouette's hold on a model outline node that projects outside a "
         "camera's silhouette (or its convex hull, hold_hull): the node is pulled back, so a limb "
-        'whose contour a neighbour took cannot stay where nothing is seen; 0 (default) switches '
-        'it off: with 2 and limb_exchange 0.5 a tracker restarted mid-motion once ended 300 mm '
-        'off',
+        'whose contour a neighbour took cannot stay where nothing is seen; 0 switches it off',
         0.0,
         100.0,
     ),
@@ -344,6 +351,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         twin_recheck=p['twin_recheck'],
         limb_exchange=p['limb_exchange'],
         recover_margin=p['recover_margin'],
+        limb_search=p['limb_search'],
         hold_sigma_px=p['hold_sigma_px'],
         hold_hull=p['hold_hull'],
         process_noise=ProcessNoise(
@@ -827,6 +835,17 @@ class TrackerNode(Node):
                 '(images lost or dropped in every contour_node)',
             )
             return 'no_contours'
+        if missing and self.tracker.status != TRACKING:
+            # a start is decided on one frame: one that lacks a camera the graph expects (its
+            # contours went out before this node subscribed) starts the track from fewer views
+            # than there are; a camera missing from MISSES_BEFORE_NOT_WAITING frames in a row is
+            # no longer expected, so the start waits at most that long
+            self.health.drop(
+                'start_incomplete',
+                f'a start waits for a frame with every expected camera; missing: '
+                f'{", ".join(missing)}',
+            )
+            return 'waiting'
         if self.body_silhouettes is not None and not self._measure_body(frame.contours):
             return 'waiting'
         if (
@@ -859,6 +878,7 @@ class TrackerNode(Node):
         self.health.set('twin_swaps', result.twin_swaps)
         self.health.set('limb_exchanges', result.limb_exchanges)
         self.health.set('recoveries', result.recoveries)
+        self.health.set('limbs_found', result.limbs_found)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:
