@@ -634,6 +634,15 @@ class ArticulatedTracker:
                 cams, out, rotations, origins, self.body, self.settings.outline_probe_px
             )
             return out
+        if 'hold_keys' in frame:  # the hold's nodes hold these: one projection for both
+            every = rig_outline_candidates(
+                cams, self.nodes, rotations, origins, frame['hold_keys']
+            )
+            frame['hold_now'] = every
+            return [
+                cand.subset(np.isin(cand.key, keys) & np.all(np.isfinite(cand.uv), axis=1))
+                for cand, keys in zip(every, frame['outline'].keys)
+            ]
         cands = rig_outline_candidates(cams, self.nodes, rotations, origins, frame['outline'].keys)
         return [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in cands]
 
@@ -803,6 +812,8 @@ class ArticulatedTracker:
         if 'hold_keys' not in frame:
             cands = frame['hold']
             frame['hold_keys'] = [_node_keys(c) for c in cands]
+        elif 'hold_now' in frame:  # projected at this iterate by _candidates
+            cands = frame.pop('hold_now')
         else:
             cands = rig_outline_candidates(
                 cams, self.nodes, rotations, origins, frame['hold_keys']
