@@ -69,11 +69,8 @@ studio.node_parameters['contour_node'] = {
     'min_region_area': int(200 * px * px)}
 # recover_margin: a limb lost in fast real motion (the left leg swept past the right one, frames
 # 80-99) is searched again; docs/recordings.md has the figures with and without it
-# hold_sigma_px, limb_exchange: the silhouette's hold within each camera's convex hull and the
-# limbs tried exchanged (off by default; docs/nodes.md)
 studio.node_parameters['tracker_node'] = {
-    'body_source': 'silhouettes', 'body_frames': 1, 'recover_margin': 0.3,
-    'hold_sigma_px': 2.0, 'limb_exchange': 0.5}
+    'body_source': 'silhouettes', 'body_frames': 1, 'recover_margin': 0.3}
 studio.save(path)
 PY
 
