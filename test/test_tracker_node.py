@@ -265,3 +265,66 @@ def test_a_frame_whose_images_were_all_lost_is_still_reported(ros_env, tmp_path)
     assert reported[T0 + 3 * DT] == 'no_contours'
     assert reported[T0 + 5 * DT] == 'no_contours'
     assert [reported[T0 + k * DT] for k in (0, 1, 2, 4)] == ['tracking'] * 4
+
+
+def test_a_start_waits_for_a_frame_with_every_camera_but_not_for_a_dead_one(ros_env, tmp_path):
+    """A start is decided on one frame: one lacking an expected camera is not started from.
+
+    Frames 0-1 lack cam_top and frame 2 has all three: the track starts at frame 2. Then the
+    tracker is reset and cam_top stays silent: after 3 frames in a row without it, it is no
+    longer expected and the track starts without it.
+    """
+    frames = 10
+    scenario, q, studio = _studio_arm(tmp_path, frames)
+    process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.1')
+    cams = [c.name for c in scenario.cameras]
+    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    with ros_session('incomplete_start_feeder', ros_env.domain_id) as (node, executor):
+        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
+        processed: list[Header] = []
+        node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
+        values: dict[str, str] = {}
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name.endswith('tracker_node'):
+                    values.update({kv.key: kv.value for kv in status.values})
+
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        reset = node.create_client(Trigger, '/tracker_node/reset')
+
+        def spin_until(condition, timeout=30.0) -> None:
+            end = time.monotonic() + timeout
+            while not condition() and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            assert condition(), [m.frame_id for m in processed]
+
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        time.sleep(0.5)
+
+        def send(k: int, without: str | None = None) -> None:
+            for cam in cams:
+                if cam != without:
+                    pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            done = len(processed) + 1
+            spin_until(lambda: len(processed) >= done, timeout=10.0)
+
+        send(0, without='cam_top')
+        send(1, without='cam_top')
+        send(2)
+        send(3)
+        spin_until(lambda: 'dropped.start_incomplete' in values, timeout=5.0)
+        first = [m.frame_id.split(' ')[0] for m in processed]
+        assert reset.wait_for_service(timeout_sec=10)
+        future = reset.call_async(Trigger.Request())
+        spin_until(future.done)
+        for k in range(4, frames):  # cam_top's contour_node is gone for good
+            send(k, without='cam_top')
+    process.terminate()
+    process.wait(timeout=20)
+    assert first == ['waiting', 'waiting', 'tracking', 'tracking'], first
+    assert int(values['dropped.start_incomplete']) >= 2, values
+    after = [m.frame_id.split(' ')[0] for m in processed[4:]]
+    # frames 4-6 are cam_top's three misses in a row: from frame 7 on it is not expected, and
+    # the track starts without it
+    assert after == ['waiting'] * 3 + ['tracking'] * (frames - 7), after
