@@ -640,7 +640,7 @@ class ArticulatedTracker:
             )
             frame['hold_now'] = every
             return [
-                cand.subset(np.isin(cand.key, keys) & np.all(np.isfinite(cand.uv), axis=1))
+                cand.subset(np.isin(_node_keys(cand), keys) & np.all(np.isfinite(cand.uv), axis=1))
                 for cand, keys in zip(every, frame['outline'].keys)
             ]
         cands = rig_outline_candidates(cams, self.nodes, rotations, origins, frame['outline'].keys)
