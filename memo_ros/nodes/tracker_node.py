@@ -262,8 +262,8 @@ PARAMS: tuple[Param, ...] = (
         "misfit (sigma^2 per contour sample) above the track's running usual at which the pose, "
         'and the pose with each pair of limbs exchanged, are refitted from a broad prior and the '
         'best kept (a lost limb re-initialised; such a frame costs about four usual ones); 0 '
-        '(default) never re-searches: at 0.3 a tracker restarted mid-motion stayed 45-50 mm off '
-        'for 70 frames in the graph-fault test',
+        "(default) never re-searches; 0.3 (the Pose2Sim demo script's) has not been measured as "
+        'the default since a start waits for every camera',
         0.0,
         100.0,
     ),
