@@ -125,13 +125,6 @@ def limb_postures(body: Body) -> list[LimbPostures]:
     return out
 
 
-def part_keys(nodes: ModelNodes, parts: np.ndarray) -> np.ndarray:
-    """Return the keys (:attr:`Candidates.key`) of every outline node the ``parts`` can have."""
-    rings = nodes.ring_starts[np.isin(nodes.part[nodes.ring_starts], parts)]
-    rims = nodes.rim_index[np.isin(nodes.part[nodes.rim_index], parts)]
-    return np.sort(np.concatenate([2 * rings, 2 * rings + 1, 2 * len(nodes) + rims]))
-
-
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Return the shortest rotation vector turning unit ``a`` onto unit ``b``."""
     axis = np.cross(a, b)

@@ -536,11 +536,13 @@ class ArticulatedTracker:
         self.usual_cost = s.recover_memory * self.usual_cost + (1 - s.recover_memory) * cost
         self._last_counts = counts
 
-    def _refined(self, q, v, P, contours, rays, masks) -> ArticulatedEKF:
-        """Return a filter at (q, v, P) after one more update on this frame, in the ranges."""
+    def _refined(self, q, v, P, contours, rays, masks, iterations: int = 1) -> ArticulatedEKF:
+        """Return a filter at (q, v, P) after ``iterations`` more updates, in the ranges."""
         ekf = ArticulatedEKF(self.model)
         ekf.q, ekf.v, ekf.P = np.array(q, float), np.array(v, float), np.array(P, float)
-        ekf.update(self._measurement_function(contours, rays, masks), 1, self.settings.gate_sigma)
+        ekf.update(
+            self._measurement_function(contours, rays, masks), iterations, self.settings.gate_sigma
+        )
         if self.settings.hard_limits:
             self._clamp(ekf)
         return ekf
@@ -975,18 +977,14 @@ class ArticulatedTracker:
 
     def _refined_from(self, q: np.ndarray, contours, rays, masks) -> np.ndarray:
         """Return ``q`` after LIMB_REFINE_ITERATIONS updates from a broad prior, in the ranges."""
-        ekf = ArticulatedEKF(self.model)
+        start = ArticulatedEKF(self.model)
         sigma_q = np.full(len(q), LIMB_REFINE_SIGMA)
         sigma_q[:3] = self.settings.init_sigma_translation
-        ekf.initialize(q, None, sigma_q, np.full(len(q), 0.5))
-        ekf.update(
-            self._measurement_function(contours, rays, masks),
-            LIMB_REFINE_ITERATIONS,
-            self.settings.gate_sigma,
+        start.initialize(q, None, sigma_q, np.full(len(q), 0.5))
+        refined = self._refined(
+            start.q, start.v, start.P, contours, rays, masks, LIMB_REFINE_ITERATIONS
         )
-        if self.settings.hard_limits:
-            self._clamp(ekf)
-        return ekf.q.copy()
+        return refined.q
 
 
 def _mapped_covariance(P: np.ndarray, M: np.ndarray) -> np.ndarray:
