@@ -46,6 +46,19 @@ def _start_tracker(ros_env, studio_path, *params: str) -> subprocess.Popen:
     )
 
 
+def _tracker_diagnostics(node) -> dict[str, str]:
+    """Subscribe ``node`` to /diagnostics; return a dict of tracker_node's latest values."""
+    values: dict[str, str] = {}
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith('tracker_node'):
+                values.update({kv.key: kv.value for kv in status.values})
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    return values
+
+
 def _cloud(table, stamp_ns: int) -> PointCloud2:
     msg = array_to_pointcloud(table)
     msg.header.stamp = stamp_from_ns(stamp_ns)
@@ -59,17 +72,11 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
     with ros_session('tracker_feeder', ros_env.domain_id) as (node, executor):
         pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
         assign_pub = node.create_publisher(DiagnosticArray, '/memo/camera_assignment', 10)
-        joints, values = [], {}
+        joints: list[JointState] = []
         node.create_subscription(JointState, '/memo/joint_states', joints.append, 100)
         processed = []
         node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
-
-        def on_diagnostics(msg: DiagnosticArray) -> None:
-            for status in msg.status:
-                if status.name.endswith('tracker_node'):
-                    values.update({kv.key: kv.value for kv in status.values})
-
-        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        values = _tracker_diagnostics(node)
         reset = node.create_client(Trigger, '/tracker_node/reset')
 
         def spin(seconds: float) -> None:
@@ -172,14 +179,7 @@ def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(r
         node.create_subscription(
             Header, PROCESSED_TOPIC, lambda m: processed.append((time.monotonic(), m)), 100
         )
-        values: dict[str, str] = {}
-
-        def on_diagnostics(msg: DiagnosticArray) -> None:
-            for status in msg.status:
-                if status.name.endswith('tracker_node'):
-                    values.update({kv.key: kv.value for kv in status.values})
-
-        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        values = _tracker_diagnostics(node)
 
         def spin_until(condition, timeout=30.0) -> None:
             end = time.monotonic() + timeout
@@ -283,14 +283,7 @@ def test_a_start_waits_for_a_frame_with_every_camera_but_not_for_a_dead_one(ros_
         pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
         processed: list[Header] = []
         node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
-        values: dict[str, str] = {}
-
-        def on_diagnostics(msg: DiagnosticArray) -> None:
-            for status in msg.status:
-                if status.name.endswith('tracker_node'):
-                    values.update({kv.key: kv.value for kv in status.values})
-
-        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        values = _tracker_diagnostics(node)
         reset = node.create_client(Trigger, '/tracker_node/reset')
 
         def spin_until(condition, timeout=30.0) -> None:
