@@ -267,12 +267,15 @@ def test_a_frame_whose_images_were_all_lost_is_still_reported(ros_env, tmp_path)
     assert [reported[T0 + k * DT] for k in (0, 1, 2, 4)] == ['tracking'] * 4
 
 
-def test_a_start_waits_for_a_frame_with_every_camera_but_not_for_a_dead_one(ros_env, tmp_path):
-    """A start is decided on one frame: one lacking an expected camera is not started from.
+def test_a_start_without_a_camera_is_decided_again_when_it_comes_but_not_for_a_dead_one(
+    ros_env, tmp_path
+):
+    """A start is decided on one frame: one lacking an expected camera is started again with it.
 
-    Frames 0-1 lack cam_top and frame 2 has all three: the track starts at frame 2. Then the
-    tracker is reset and cam_top stays silent: after 3 frames in a row without it, it is no
-    longer expected and the track starts without it.
+    Frames 0-1 lack cam_top: they are tracked and published, marked start_incomplete, and
+    frame 2, which has all three, starts the track again. Then the tracker is reset and cam_top
+    stays silent: after 3 frames in a row without it, it is no longer expected and the start
+    stands.
     """
     frames = 10
     scenario, q, studio = _studio_arm(tmp_path, frames)
@@ -306,18 +309,22 @@ def test_a_start_waits_for_a_frame_with_every_camera_but_not_for_a_dead_one(ros_
         send(1, without='cam_top')
         send(2)
         send(3)
-        spin_until(lambda: 'dropped.start_incomplete' in values, timeout=5.0)
-        first = [m.frame_id.split(' ')[0] for m in processed]
+        spin_until(lambda: 'starts_redone' in values, timeout=5.0)
+        first = [m.frame_id for m in processed]
+        redone = dict(values)
         assert reset.wait_for_service(timeout_sec=10)
         future = reset.call_async(Trigger.Request())
         spin_until(future.done)
         for k in range(4, frames):  # cam_top's contour_node is gone for good
             send(k, without='cam_top')
+        spin_until(lambda: int(values.get('published', 0)) >= frames, timeout=5.0)
     process.terminate()
     process.wait(timeout=20)
-    assert first == ['waiting', 'waiting', 'tracking', 'tracking'], first
-    assert int(values['dropped.start_incomplete']) >= 2, values
-    after = [m.frame_id.split(' ')[0] for m in processed[4:]]
+    assert first == ['tracking start_incomplete'] * 2 + ['tracking'] * 2, first
+    assert redone['starts_redone'] == '1' and redone['start_incomplete'] == '1', redone
+    assert int(redone['initialisations']) == 2, redone  # frame 0's start, then frame 2's
+    after = [m.frame_id for m in processed[4:]]
     # frames 4-6 are cam_top's three misses in a row: from frame 7 on it is not expected, and
-    # the track starts without it
-    assert after == ['waiting'] * 3 + ['tracking'] * (frames - 7), after
+    # the start made without it stands
+    assert after == ['tracking start_incomplete'] * 3 + ['tracking'] * (frames - 7), after
+    assert values['starts_redone'] == '1' and values['start_incomplete'] == '2', values

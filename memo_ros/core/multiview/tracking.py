@@ -185,17 +185,21 @@ class ArticulatedTracker:
         self.reset()
 
     # ------------------------------------------------------------ state
-    def reset(self, use_initial_pose: bool = True) -> None:
+    def reset(self, use_initial_pose: bool = True, pose: np.ndarray | None = None) -> None:
         """Forget the track.
 
-        The next frame with contours initialises again, from the studio's initial pose (a user
-        reset, a bag loop) or, after a lost track, from the silhouettes.
+        The next frame with contours initialises again, from ``pose`` if given, else from the
+        studio's initial pose (a user reset, a bag loop) or, after a lost track, from the
+        silhouettes.
         """
         self.status = WAITING
         self.stamp_ns: int | None = None
         self.bad_frames = 0
         self.usual_cost: float | None = None  # running misfit per sample of the track (_recover)
-        self.pending_pose: np.ndarray | None = self.initial_pose if use_initial_pose else None
+        self.pending_pose: np.ndarray | None = (
+            pose if pose is not None else self.initial_pose if use_initial_pose else None
+        )
+        self.start_pose: np.ndarray | None = None  # the pose the track started from, if given
         self.twin_ekf: ArticulatedEKF | None = None  # the leader's twin, while it is followed
         self._start_twin: np.ndarray | None = (
             None  # the start's best twin, from the heading search
@@ -229,9 +233,15 @@ class ArticulatedTracker:
         problem = pose_problem(self.body, q, studio_volume(list(self.cameras.values())))
         if problem:
             raise ValueError(problem)
-        q = np.asarray(q, float)
-        self.reset()
-        self.pending_pose = q
+        self.reset(pose=np.asarray(q, float))
+
+    def start_again(self) -> None:
+        """Forget the track and start it again at the next frame, as it was started.
+
+        From the pose it started from (given, or the studio's), or from the silhouettes: a start
+        decided on a frame that lacked a camera is decided again once the camera comes.
+        """
+        self.reset(use_initial_pose=False, pose=self.start_pose)
 
     # ------------------------------------------------------------ frames
     def step(
@@ -267,6 +277,7 @@ class ArticulatedTracker:
         dt = 0.0
         if self.status != TRACKING:
             from_pose = self.pending_pose is not None
+            self.start_pose = self.pending_pose
             if from_pose:  # the heading a user or the studio gave counts as decided evidence
                 self.evidence = self.settings.twin_evidence
             self._holding = False
