@@ -46,6 +46,21 @@ def test_a_short_dance_is_tracked_and_reported(capsys):
     assert 'exact rendered 160x120 silhouettes' in out
 
 
+def test_a_dance_started_from_the_silhouettes_is_tracked_without_the_true_pose(capsys):
+    report = run_dance_benchmark(
+        [30.0], ['ring4'], frames=6, size=(320, 240), contours='silhouettes', start='silhouettes'
+    )
+    (run,) = report['runs']
+    assert report['start'] == 'silhouettes' and run['untracked'] == 0
+    assert run['mpjpe_mm_mean'] < 60.0, run  # a standing posture fitted, not the true pose
+    given = run_dance_benchmark(
+        [30.0], ['ring4'], frames=6, size=(320, 240), contours='silhouettes'
+    )['runs'][0]
+    assert run['mpjpe_mm_mean'] != given['mpjpe_mm_mean']  # the true pose was not used
+    print_dance_benchmark(report)
+    assert 'started from the silhouettes (no pose given)' in capsys.readouterr().out
+
+
 def test_tracker_settings_given_on_the_command_line_reach_the_tracker_and_the_report(capsys):
     report = run_dance_benchmark(
         [30.0],
@@ -107,6 +122,7 @@ def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
         (('--headings', 'nan'), '--headings must be finite numbers'),
         (('--size', '320'), '--size WxH'),
         (('--contours', 'edges'), "unknown --contours 'edges'"),
+        (('--start', 'pose'), "unknown --start 'pose'; known: given, silhouettes"),
         (('--frames', '0'), '--frames must be at least 1'),
         (('--jobs', '0'), '--jobs must be at least 1'),
         (('--tracker', 'nonsense=1'), "--tracker 'nonsense=1': not a numeric TrackerSettings"),

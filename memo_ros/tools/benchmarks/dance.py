@@ -3,7 +3,9 @@
 Every run simulates studio-dance (4 s at 30 Hz: arms overhead, a fast kick of each leg, a full
 turn in 1.2 s, a squat) from one start heading on one rig, and tracks it offline with the
 ROS-free :class:`ArticulatedTracker` (``TrackerSettings()``), started at the true first pose as
-the studio file starts the tracker node.  Every camera serves every part (no camera selection).
+the studio file starts the tracker node, or, with ``--start silhouettes``, from the silhouettes
+alone (a studio without ``initial_pose``: the heading searched, then decided by the twin).
+Every camera serves every part (no camera selection).
 The contours come from the contour pipeline the contour node runs, with its studio settings, on
 the simulated grey images (sensor noise, the background learnt from the empty frames first), or,
 with ``--contours silhouettes``, from the exact rendered silhouettes.  Per run: MPJPE mean and
@@ -37,6 +39,7 @@ from memo_ros.core.simulation.scenarios import RIGS, Scenario, dance_moves, make
 HEADINGS_DEG = tuple(range(0, 360, 45))
 SIZE = (320, 240)  # half the studio's 640x480: the full sweep in a few minutes on 2 cores
 CONTOURS = ('images', 'silhouettes')
+STARTS = ('given', 'silhouettes')  # the true first pose, or automatic initialisation
 NOISE = 3.0  # grey levels, simulate's default
 # issue 16's Done-when for studio-dance
 MPJPE_MEAN_MM = 30.0
@@ -68,6 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '(exact rendered outlines)',
     )
     parser.add_argument(
+        '--start',
+        default='given',
+        help='dance: given (the true first pose, as a studio with initial_pose; default) or '
+        'silhouettes (automatic initialisation from the first frame, no pose given)',
+    )
+    parser.add_argument(
         '--tracker',
         action='append',
         default=[],
@@ -91,7 +100,7 @@ def dance_rig(args: argparse.Namespace) -> str:
 def command_words(args: argparse.Namespace) -> list[str]:
     """Return this suite's options as command-line words (for the report's command line)."""
     words = ['--headings', args.headings, '--rig', dance_rig(args), '--size', args.size]
-    words += ['--contours', args.contours, '--jobs', str(args.jobs)]
+    words += ['--contours', args.contours, '--start', args.start, '--jobs', str(args.jobs)]
     for setting in args.tracker:
         words += ['--tracker', setting]
     return words + ([] if args.frames is None else ['--frames', str(args.frames)])
@@ -118,6 +127,8 @@ def measure(args: argparse.Namespace) -> dict:
         raise CliError(f'unknown rig {rig!r}; known: {", ".join(RIGS)}, both')
     if args.contours not in CONTOURS:
         raise CliError(f'unknown --contours {args.contours!r}; known: {", ".join(CONTOURS)}')
+    if args.start not in STARTS:
+        raise CliError(f'unknown --start {args.start!r}; known: {", ".join(STARTS)}')
     if args.frames is not None and args.frames < 1:
         raise CliError('--frames must be at least 1')
     if args.jobs < 1:
@@ -131,6 +142,7 @@ def measure(args: argparse.Namespace) -> dict:
         args.contours,
         args.jobs,
         tracker_overrides(args.tracker),
+        args.start,
     )
 
 
@@ -172,6 +184,7 @@ def run_dance_benchmark(
     contours: str = 'images',
     jobs: int = 1,
     overrides: dict | None = None,
+    start: str = 'given',
 ) -> dict:
     """Track studio-dance from every heading on every rig; return the runs and the worst figures.
 
@@ -179,9 +192,11 @@ def run_dance_benchmark(
     """
     overrides = overrides or {}
     cases = [
-        (rig, float(h), frames, size, contours, overrides) for rig in rigs for h in headings_deg
+        (rig, float(h), frames, size, contours, overrides, start)
+        for rig in rigs
+        for h in headings_deg
     ]
-    start = time.perf_counter()
+    began = time.perf_counter()
     if jobs > 1 and len(cases) > 1:
         saved = {k: os.environ.get(k) for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')}
         os.environ.update(dict.fromkeys(saved, '1'))  # the children start with one BLAS thread
@@ -204,6 +219,7 @@ def run_dance_benchmark(
         'noise': NOISE if contours == 'images' else 0.0,
         'jobs': jobs,
         'tracker': overrides,
+        'start': start,
         'limits': {
             'mpjpe_mm_mean': MPJPE_MEAN_MM,
             'mpjpe_mm_max': MPJPE_MAX_MM,
@@ -212,17 +228,17 @@ def run_dance_benchmark(
         },
         'runs': runs,
         'worst': _worst(runs),
-        'seconds': time.perf_counter() - start,
+        'seconds': time.perf_counter() - began,
     }
 
 
 def _run_case(case: tuple) -> dict:
-    """Run one (rig, heading, frames, size, contours) case; a process pool's task."""
+    """Run one (rig, heading, frames, size, contours, overrides, start) case; a pool's task."""
     import cv2
 
     cv2.setNumThreads(1)
-    rig, heading, frames, size, contours, overrides = case
-    return track_dance(rig, heading, frames, size, contours, overrides=overrides)
+    rig, heading, frames, size, contours, overrides, start = case
+    return track_dance(rig, heading, frames, size, contours, overrides=overrides, start=start)
 
 
 def track_dance(
@@ -233,10 +249,12 @@ def track_dance(
     contours: str = 'images',
     body: Body | None = None,
     overrides: dict | None = None,
+    start: str = 'given',
 ) -> dict:
     """Track one studio-dance offline and score it against its truth, frame by frame.
 
-    ``overrides``: TrackerSettings fields other than their defaults.
+    ``overrides``: TrackerSettings fields other than their defaults; ``start``: given (the true
+    first pose) or silhouettes (no pose given).
     """
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
@@ -248,7 +266,8 @@ def track_dance(
     q_true, _ = scenario.coordinates(times)
     true_r, true_o = body.forward_kinematics(q_true)
     settings = TrackerSettings(**(overrides or {}))
-    tracker = ArticulatedTracker(body, scenario.cameras, settings, initial_pose=q_true[0])
+    initial = q_true[0] if start == 'given' else None
+    tracker = ArticulatedTracker(body, scenario.cameras, settings, initial_pose=initial)
     est_r, est_o = np.full_like(true_r, np.nan), np.full_like(true_o, np.nan)
     tracked = np.zeros(len(times), bool)
     seconds = 0.0  # in the tracker's steps
@@ -432,9 +451,14 @@ def print_dance_benchmark(report: dict) -> None:
     )
     limits = report['limits']
     settings = ', '.join(f'{k}={v}' for k, v in report.get('tracker', {}).items())
+    started = (
+        'started at the true first pose'
+        if report.get('start', 'given') == 'given'
+        else 'started from the silhouettes (no pose given)'
+    )
     print(
         f'studio-dance tracked offline by ArticulatedTracker(TrackerSettings({settings})), '
-        f'started at the true first pose, every camera for every part; contours: {source}'
+        f'{started}, every camera for every part; contours: {source}'
     )
     print(
         f'Done-when: MPJPE mean <= {limits["mpjpe_mm_mean"]:g} mm, no frame over '
