@@ -67,10 +67,7 @@ studio.node_parameters['contour_node'] = {
     'segmenter': 'sequence', 'threshold': 12.0, 'background_bag': bag, 'background_frames': 100,
     'keep_regions': 'tracked', 'roi_margin': 6.0 * px, 'learn_margin': max(int(round(3 * px)), 1),
     'min_region_area': int(200 * px * px)}
-# recover_margin: a limb lost in fast real motion (the left leg swept past the right one, frames
-# 80-99) is searched again; docs/recordings.md has the figures with and without it
-studio.node_parameters['tracker_node'] = {
-    'body_source': 'silhouettes', 'body_frames': 1, 'recover_margin': 0.3}
+studio.node_parameters['tracker_node'] = {'body_source': 'silhouettes', 'body_frames': 1}
 studio.save(path)
 PY
 

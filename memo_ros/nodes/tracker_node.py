@@ -258,12 +258,11 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'recover_margin',
-        0.0,
+        0.3,
         "misfit (sigma^2 per contour sample) above the track's running usual at which the pose, "
-        'and the pose with each pair of limbs exchanged, are refitted from a broad prior and the '
-        'best kept (a lost limb re-initialised; such a frame costs about four usual ones); 0 '
-        "(default) never re-searches; 0.3 (the Pose2Sim demo script's) has not been measured as "
-        'the default since a start waits for every camera',
+        'then the pose with each pair of limbs exchanged, are refitted from a broad prior until '
+        'one is back within it, the best kept (a lost limb re-initialised; such a frame costs '
+        'two to four usual ones); 0 never re-searches',
         0.0,
         100.0,
     ),

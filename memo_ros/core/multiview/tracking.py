@@ -109,7 +109,7 @@ class TrackerSettings:
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
     limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
-    recover_margin: float = 0.0  # misfit (sigma^2 / sample) over the usual that starts a search
+    recover_margin: float = 0.3  # misfit (sigma^2 / sample) over the usual that starts a search
     limb_search: float = 0.1  # sigma^2 per sample a limb's re-found posture must fit better by at
     # a start (limb_search.py); 0: a start keeps its limbs where the pose put them
     recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
@@ -517,8 +517,9 @@ class ArticulatedTracker:
         raised neighbour) leaves the pose in a local minimum whose misfit is well above the
         track's running usual, and the filter's own small steps cannot leave it.  Then the pose,
         and the pose with each pair of limbs exchanged, are refitted from a broad prior like a
-        start (``recover_iterations``, within the ranges), and the best is kept if it fits better:
-        re-initialising what was lost without forgetting the rest (the rates and covariance stay).
+        start (``recover_iterations``, within the ranges), in that order until one is back within
+        the margin of the usual, and the best is kept if it fits better: re-initialising what was
+        lost without forgetting the rest (the rates and covariance stay).
         """
         s = self.settings
         counts = self._last_counts
@@ -538,6 +539,8 @@ class ArticulatedTracker:
                 trial_cost /= max(samples, 1)
                 if trial_cost < cost and (best is None or trial_cost < best[0]):
                     best = (trial_cost, trial, M)
+                if best is not None and best[0] < self.usual_cost + s.recover_margin:
+                    break  # back to the usual misfit: the other starts are not tried
             if best is not None:
                 cost, trial, M = best
                 self.ekf.q = trial.q
