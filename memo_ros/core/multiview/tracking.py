@@ -292,7 +292,17 @@ class ArticulatedTracker:
             dt = (stamp_ns - self.stamp_ns) * 1e-9
             self.ekf.predict(dt)
         measure = self._measurement_function(contours, rays, masks)
-        report = self.ekf.update(measure, self.settings.iterations, self.settings.gate_sigma)
+        last: list = []  # the update's last linearisation: its measurements and counts
+
+        def measure_and_keep(q: np.ndarray) -> Measurements:
+            m = measure(q)
+            last[:] = [m, self._last_counts]
+            return m
+
+        report = self.ekf.update(
+            measure_and_keep, self.settings.iterations, self.settings.gate_sigma
+        )
+        updated = self.ekf
         self.stamp_ns = stamp_ns
         matched, unselected = self._last_counts
         free = self.ekf.q.copy()  # before the ranges: its twin bends the right way
@@ -301,7 +311,12 @@ class ArticulatedTracker:
         if self.settings.limb_exchange > 0 and not initialised:
             self._exchange_limbs(contours, rays, masks, samples)
         if self.settings.recover_margin > 0:
-            self._recover(contours, rays, masks, samples, initialised)
+            # the misfit where the update last linearised, unless an exchange replaced the pose
+            linearised = self._misfit(last[0], last[1][0], samples) if last else None
+            self._recover(
+                contours, rays, masks, samples, initialised,
+                linearised if self.ekf is updated else None,
+            )  # fmt: skip
         if self.settings.twin_evidence > 0:
             self._follow_twin(
                 contours, rays, masks, samples, dt, initialised and not from_pose, free
@@ -510,7 +525,15 @@ class ArticulatedTracker:
                 current = cost
         self._last_counts = counts
 
-    def _recover(self, contours, rays, masks, samples: int, initialised: bool) -> None:
+    def _recover(
+        self,
+        contours,
+        rays,
+        masks,
+        samples: int,
+        initialised: bool,
+        linearised: float | None = None,
+    ) -> None:
         """Search again from a broad prior when the fit is much worse than the track's usual.
 
         A limb the filter lost (the fast kick followed by the other leg, an arm dragged up by its
@@ -519,16 +542,21 @@ class ArticulatedTracker:
         and the pose with each pair of limbs exchanged, are refitted from a broad prior like a
         start (``recover_iterations``, within the ranges), in that order until one is back within
         the margin of the usual, and the best is kept if it fits better: re-initialising what was
-        lost without forgetting the rest (the rates and covariance stay).
+        lost without forgetting the rest (the rates and covariance stay). The misfit watched is
+        ``linearised``, the update's own at its last linearisation (no extra evaluation in a usual
+        frame) when given; a search compares the pose's exact misfit.
         """
         s = self.settings
         counts = self._last_counts
-        cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples) / max(samples, 1)
+        if linearised is None:
+            linearised = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+        cost = linearised / max(samples, 1)
         if initialised or self.usual_cost is None:
             self.usual_cost = cost
             self._last_counts = counts
             return
         if cost > self.usual_cost + s.recover_margin:
+            cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples) / max(samples, 1)
             best: tuple[float, ArticulatedEKF, np.ndarray] | None = None
             starts = [(self.ekf.q, np.eye(self.body.n_coordinates))]
             starts += [self.anatomy.exchange(self.ekf.q, pair) for pair in self.anatomy.limbs]
@@ -614,7 +642,10 @@ class ArticulatedTracker:
         and an unmatched sample counts the full gate^2.
         """
         m = self._measurement_function(contours, rays, masks)(q)
-        matched = self._last_counts[0]
+        return self._misfit(m, self._last_counts[0], samples)
+
+    def _misfit(self, m: Measurements, matched: int, samples: int) -> float:
+        """Robust misfit of measurements ``m``, ``matched`` of ``samples`` contour samples."""
         gate2 = self.settings.gate_sigma**2
         z2 = (m.r / m.sigma) ** 2 if len(m) else np.zeros(0)
         return float(np.minimum(z2, gate2).sum() + max(samples - matched, 0) * gate2)
