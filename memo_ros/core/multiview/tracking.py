@@ -292,12 +292,11 @@ class ArticulatedTracker:
             dt = (stamp_ns - self.stamp_ns) * 1e-9
             self.ekf.predict(dt)
         measure = self._measurement_function(contours, rays, masks)
-        last: list = []  # the update's last linearisation: its measurements and counts
+        last: list[Measurements] = []  # the update's last linearisation (counts: _last_counts)
 
         def measure_and_keep(q: np.ndarray) -> Measurements:
-            m = measure(q)
-            last[:] = [m, self._last_counts]
-            return m
+            last[:] = [measure(q)]
+            return last[0]
 
         report = self.ekf.update(
             measure_and_keep, self.settings.iterations, self.settings.gate_sigma
@@ -312,7 +311,7 @@ class ArticulatedTracker:
             self._exchange_limbs(contours, rays, masks, samples)
         if self.settings.recover_margin > 0:
             # the misfit where the update last linearised, unless an exchange replaced the pose
-            linearised = self._misfit(last[0], last[1][0], samples) if last else None
+            linearised = self._misfit(last[0], matched, samples) if last else None
             self._recover(
                 contours, rays, masks, samples, initialised,
                 linearised if self.ekf is updated else None,
@@ -548,6 +547,7 @@ class ArticulatedTracker:
         """
         s = self.settings
         counts = self._last_counts
+        exact = linearised is None
         if linearised is None:
             linearised = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
         cost = linearised / max(samples, 1)
@@ -556,7 +556,9 @@ class ArticulatedTracker:
             self._last_counts = counts
             return
         if cost > self.usual_cost + s.recover_margin:
-            cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples) / max(samples, 1)
+            if not exact:
+                cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+                cost /= max(samples, 1)
             best: tuple[float, ArticulatedEKF, np.ndarray] | None = None
             starts = [(self.ekf.q, np.eye(self.body.n_coordinates))]
             starts += [self.anatomy.exchange(self.ekf.q, pair) for pair in self.anatomy.limbs]
