@@ -841,31 +841,30 @@ class TrackerNode(Node):
             # there are, so the start is decided again when that camera comes; once it is no
             # longer expected (missing from MISSES_BEFORE_NOT_WAITING frames in a row), the
             # start stands
-            if self.start_lacked & frame.contours.keys():
+            arrived = self.start_lacked & frame.contours.keys()
+            if arrived:
                 self.tracker.start_again()
                 self.health.note(
                     'starts_redone',
-                    'a start decided without '
-                    f'{", ".join(sorted(self.start_lacked & frame.contours.keys()))} '
-                    'decided again with it',
+                    f'a start decided without {", ".join(sorted(arrived))} decided again with it',
                 )
                 self.start_lacked = set()
             elif not self.start_lacked & set(missing):
                 self.start_lacked = set()
         if self.tracker.status != TRACKING:
             self.start_lacked = set(missing)
-        if missing and self.tracker.status != TRACKING:
-            if self.body_silhouettes is not None:  # the body is measured from every camera
+            if missing and self.body_silhouettes is not None:  # measured from every camera
                 self.health.drop(
                     'start_incomplete',
                     f'the body is measured on a frame with every expected camera; missing: '
                     f'{", ".join(missing)}',
                 )
                 return 'waiting'
-            self.health.note(
-                'start_incomplete',
-                f'a start without {", ".join(missing)}: decided again when it comes',
-            )
+            if missing:
+                self.health.note(
+                    'start_incomplete',
+                    f'a start without {", ".join(missing)}: decided again when it comes',
+                )
         if self.body_silhouettes is not None and not self._measure_body(frame.contours):
             return 'waiting'
         if (
