@@ -5,6 +5,7 @@ Frames in, joint states out, bad input counted, resets.
 
 from __future__ import annotations
 
+from functools import partial
 import subprocess
 import time
 
@@ -59,6 +60,17 @@ def _tracker_diagnostics(node) -> dict[str, str]:
     return values
 
 
+def _spin_until(executor, condition, describe, timeout: float = 30.0, period: float = 0.05):
+    """Spin ``executor`` until ``condition()`` holds or ``timeout`` s pass; assert it.
+
+    ``describe()`` says what was seen when it does not hold.
+    """
+    end = time.monotonic() + timeout
+    while not condition() and time.monotonic() < end:
+        executor.spin_once(timeout_sec=period)
+    assert condition(), describe()
+
+
 def _cloud(table, stamp_ns: int) -> PointCloud2:
     msg = array_to_pointcloud(table)
     msg.header.stamp = stamp_from_ns(stamp_ns)
@@ -84,11 +96,13 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.05)
 
-        def spin_until(condition, timeout=20.0) -> None:
-            end = time.monotonic() + timeout
-            while not condition() and time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.1)
-            assert condition(), ' '.join(f'{k}={v}' for k, v in sorted(values.items()))
+        spin_until = partial(
+            _spin_until,
+            executor,
+            describe=lambda: ' '.join(f'{k}={v}' for k, v in sorted(values.items())),
+            timeout=20.0,
+            period=0.1,
+        )
 
         spin_until(
             lambda: (
@@ -181,11 +195,11 @@ def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(r
         )
         values = _tracker_diagnostics(node)
 
-        def spin_until(condition, timeout=30.0) -> None:
-            end = time.monotonic() + timeout
-            while not condition() and time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.05)
-            assert condition(), ' '.join(f'{k}={v}' for k, v in sorted(values.items()))
+        spin_until = partial(
+            _spin_until,
+            executor,
+            describe=lambda: ' '.join(f'{k}={v}' for k, v in sorted(values.items())),
+        )
 
         spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
         sent = []
@@ -231,11 +245,11 @@ def test_a_frame_whose_images_were_all_lost_is_still_reported(ros_env, tmp_path)
         processed: list[Header] = []
         node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
 
-        def spin_until(condition, timeout=30.0) -> None:
-            end = time.monotonic() + timeout
-            while not condition() and time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.05)
-            assert condition(), [(m.stamp.sec, m.stamp.nanosec, m.frame_id) for m in processed]
+        spin_until = partial(
+            _spin_until,
+            executor,
+            describe=lambda: [(m.stamp.sec, m.stamp.nanosec, m.frame_id) for m in processed],
+        )
 
         spin_until(
             lambda: all(p.get_subscription_count() for p in [*pubs.values(), *infos.values()])
@@ -289,11 +303,9 @@ def test_a_start_without_a_camera_is_decided_again_when_it_comes_but_not_for_a_d
         values = _tracker_diagnostics(node)
         reset = node.create_client(Trigger, '/tracker_node/reset')
 
-        def spin_until(condition, timeout=30.0) -> None:
-            end = time.monotonic() + timeout
-            while not condition() and time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.05)
-            assert condition(), [m.frame_id for m in processed]
+        spin_until = partial(
+            _spin_until, executor, describe=lambda: [m.frame_id for m in processed]
+        )
 
         spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
         time.sleep(0.5)
