@@ -310,11 +310,11 @@ class ArticulatedTracker:
         free = self.ekf.q.copy()  # before the ranges: its twin bends the right way
         if self.settings.hard_limits:
             self._clamp(self.ekf)
+        # the misfit where the update last linearised: what the exchange and the search watch
+        linearised = self._misfit(last[0], matched, samples) if last else None
         if self.settings.limb_exchange > 0 and not initialised:
-            self._exchange_limbs(contours, rays, masks, samples)
-        if self.settings.recover_margin > 0:
-            # the misfit where the update last linearised, unless an exchange replaced the pose
-            linearised = self._misfit(last[0], matched, samples) if last else None
+            self._exchange_limbs(contours, rays, masks, samples, linearised)
+        if self.settings.recover_margin > 0:  # unless an exchange replaced the pose
             self._recover(
                 contours, rays, masks, samples, initialised,
                 linearised if self.ekf is updated else None,
@@ -489,7 +489,9 @@ class ArticulatedTracker:
             self.twin_ekf = None
             self.since_twin = 0
 
-    def _exchange_limbs(self, contours, rays, masks, samples: int) -> None:
+    def _exchange_limbs(
+        self, contours, rays, masks, samples: int, linearised: float | None = None
+    ) -> None:
         """Exchange a pair of limbs when the exchanged pair fits this frame's contours better.
 
         A fast kick seen from the side moves the model's leg nearer that camera whichever leg
@@ -497,7 +499,10 @@ class ArticulatedTracker:
         tried whenever its left-right difference has changed by ``limb_exchange`` since its last
         try (fast limb motion): exchanged, refined by one iteration and kept if it fits better by
         ``exchange_margin`` per sample than the pose as it stands given the same iteration (an
-        extra iteration alone lowers the misfit of a pose the frame's two have not settled).
+        extra iteration alone lowers the misfit of a pose the frame's two have not settled).  A
+        try that does not beat by that margin ``linearised``, the update's own misfit at its last
+        linearisation, is dropped before the pose as it stands is refined: most tries fail, and
+        this spares each failed one an iteration and a misfit.
         """
         s = self.settings
         counts = self._last_counts
@@ -507,6 +512,14 @@ class ArticulatedTracker:
             if np.max(np.abs(difference - self.exchange_tried[pair])) < s.limb_exchange:
                 continue
             self.exchange_tried[pair] = difference
+            q, M = self.anatomy.exchange(self.ekf.q, pair)
+            trial = self._refined(
+                q, M @ self.ekf.v, _mapped_covariance(self.ekf.P, M), contours, rays, masks
+            )
+            cost = self._fit_cost(trial.q, contours, rays, masks, samples)
+            margin = s.exchange_margin * samples
+            if current is None and linearised is not None and cost >= linearised - margin:
+                continue  # no better than the pose's misfit before the update's last iteration
             if current is None:  # the pose as it stands, given the same extra iteration
                 current = self._fit_cost(
                     self._refined(self.ekf.q, self.ekf.v, self.ekf.P, contours, rays, masks).q,
@@ -515,12 +528,7 @@ class ArticulatedTracker:
                     masks,
                     samples,
                 )
-            q, M = self.anatomy.exchange(self.ekf.q, pair)
-            trial = self._refined(
-                q, M @ self.ekf.v, _mapped_covariance(self.ekf.P, M), contours, rays, masks
-            )
-            cost = self._fit_cost(trial.q, contours, rays, masks, samples)
-            if cost < current - s.exchange_margin * samples:
+            if cost < current - margin:
                 self.ekf = trial
                 self.limb_exchanges += 1
                 self.exchange_tried[pair] = self.anatomy.difference(trial.q, pair)
