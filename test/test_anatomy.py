@@ -183,3 +183,28 @@ def test_without_the_hold_the_exchanged_legs_follow_the_kick():
     settings = TrackerSettings(**{**CONTOUR_FORCES_ONLY, 'limb_exchange': 0.5})
     errors, exchanges = _kick_errors(settings)
     assert exchanges >= 1 and errors.max() < 0.04, (exchanges, np.round(1000 * errors))
+
+
+def test_an_exchange_try_no_better_than_the_updates_own_misfit_refines_nothing_more():
+    """Both pairs tried on a frame their exchange cannot fit better: one refit each, no more.
+
+    The pose as it stands is refined for the comparison only when a try beats the misfit the
+    update itself computed at its last linearisation.
+    """
+    cameras = studio_cameras()
+    q = _bent_pose(30.0)
+    tracker = ArticulatedTracker(BODY, cameras, TrackerSettings(), initial_pose=q)
+    tracker.step(0, _contours(cameras, q))
+    refined = []
+    refine = tracker._refined
+
+    def counted(*args, **kwargs):
+        refined.append(args[0])
+        return refine(*args, **kwargs)
+
+    tracker._refined = counted
+    for pair in tracker.exchange_tried:  # as if both pairs had just moved a lot
+        tracker.exchange_tried[pair] = tracker.exchange_tried[pair] + 10.0
+    result = tracker.step(int(1e9 / 30), _contours(cameras, q))
+    assert result.limb_exchanges == 0
+    assert len(refined) == len(ANATOMY.limbs), len(refined)  # the two exchanged trials only
