@@ -125,6 +125,15 @@ PARAMS: tuple[Param, ...] = (
         10.0,
     ),
     Param(
+        'hip_twist_sigma',
+        0.1,
+        "each hip's twist about the thigh's axis measured as 0 with this noise, rad: it ties the "
+        "pelvis's heading to the legs (an elliptic torso hardly shows its own); a twist the feet "
+        'show still wins; 0: off',
+        0.0,
+        10.0,
+    ),
+    Param(
         'process_noise_translation',
         2.0,
         'white-noise acceleration of the root position, m/s^2/sqrt(Hz)',
@@ -342,6 +351,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         outline_probe_px=p['outline_probe_px'],
         contour_smoothing=p['contour_smoothing'],
         limit_sigma=p['limit_sigma'],
+        hip_twist_sigma=p['hip_twist_sigma'],
         nis_limit=p['nis_limit'],
         min_matched_fraction=p['min_matched_fraction'],
         lost_after=p['lost_after'],

@@ -86,6 +86,7 @@ class Anatomy:
             self.twin_sign[k] = TWIN_SIGN[axis]
 
         self.limbs = {pair: _limb_exchange(names, joints) for pair, joints in LIMB_JOINTS.items()}
+        self.hip_twists = np.array([names.index(f'hip_{side}_z') for side in ('l', 'r')], int)
 
     def difference(self, q: np.ndarray, pair: str) -> np.ndarray:
         """Return the left limb's coordinates less the mirror of the right's (0 if symmetric)."""

@@ -89,6 +89,10 @@ class TrackerSettings:
         False  # also move samples back by the first-order shift (overshoots at thin tips)
     )
     limit_sigma: float = 0.02  # joint limits as soft pseudo-measurements, rad (0 = no limits)
+    # each hip's twist about the thigh's axis (hip_l_z, hip_r_z) measured as 0 with this noise,
+    # rad: the elliptic torso hardly shows its heading, and a torso turned with both hips turned
+    # back leaves the legs where they were; a twist the feet show still wins (0: off)
+    hip_twist_sigma: float = 0.1
     ring_spacing: float = 0.03  # m between node rings along a part
     min_matched_fraction: float = (
         0.3  # fewer matched samples than this fraction = inconsistent frame
@@ -706,6 +710,20 @@ class ArticulatedTracker:
         cands = rig_outline_candidates(cams, self.nodes, rotations, origins, frame['outline'].keys)
         return [cand.subset(np.all(np.isfinite(cand.uv), axis=1)) for cand in cands]
 
+    def _hip_twist_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Each hip's twist as a pseudo-measurement of 0 (``hip_twist_sigma``), or None if off.
+
+        It ties the pelvis's heading to the legs: silhouettes of an elliptic torso show its heading
+        only weakly, and the hips' ball joints let it turn while both thighs turn back.
+        """
+        sigma = self.settings.hip_twist_sigma
+        if sigma <= 0:
+            return None
+        twists = self.anatomy.hip_twists
+        H = np.zeros((len(twists), self.body.n_coordinates))
+        H[np.arange(len(twists)), twists] = 1.0
+        return H, -q[twists], np.full(len(twists), sigma)
+
     def _limit_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Joint limits as pseudo-measurements (soft inequality constraints).
 
@@ -833,6 +851,11 @@ class ArticulatedTracker:
                 rows_r.append(r)
                 rows_s.append(sigma)
             self._last_counts = (matched, unselected)
+            twists = self._hip_twist_rows(q)
+            if twists is not None:
+                rows_H.append(twists[0])
+                rows_r.append(twists[1])
+                rows_s.append(twists[2])
             limits = self._limit_rows(q)
             if limits is not None:
                 rows_H.append(limits[0])
