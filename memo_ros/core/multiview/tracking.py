@@ -510,6 +510,7 @@ class ArticulatedTracker:
         """
         s = self.settings
         counts = self._last_counts
+        margin = s.exchange_margin * samples
         current = None
         for pair in self.anatomy.limbs:
             difference = self.anatomy.difference(self.ekf.q, pair)
@@ -521,7 +522,6 @@ class ArticulatedTracker:
                 q, M @ self.ekf.v, _mapped_covariance(self.ekf.P, M), contours, rays, masks
             )
             cost = self._fit_cost(trial.q, contours, rays, masks, samples)
-            margin = s.exchange_margin * samples
             if current is None and linearised is not None and cost >= linearised - margin:
                 continue  # no better than the pose's misfit before the update's last iteration
             if current is None:  # the pose as it stands, given the same extra iteration
@@ -720,9 +720,7 @@ class ArticulatedTracker:
         if sigma <= 0:
             return None
         twists = self.anatomy.hip_twists
-        H = np.zeros((len(twists), self.body.n_coordinates))
-        H[np.arange(len(twists)), twists] = 1.0
-        return H, -q[twists], np.full(len(twists), sigma)
+        return _coordinate_rows(self.body.n_coordinates, twists, -q[twists], sigma)
 
     def _limit_rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Joint limits as pseudo-measurements (soft inequality constraints).
@@ -736,9 +734,12 @@ class ArticulatedTracker:
         active = target != v
         if not active.any():
             return None
-        H = np.zeros((int(active.sum()), self.body.n_coordinates))
-        H[np.arange(len(H)), self.limit_index[active]] = 1.0
-        return H, target[active] - v[active], np.full(len(H), self.settings.limit_sigma)
+        return _coordinate_rows(
+            self.body.n_coordinates,
+            self.limit_index[active],
+            target[active] - v[active],
+            self.settings.limit_sigma,
+        )
 
     def _measurement_function(self, contours, rays, masks, robust: bool = True):
         """measure(q) -> Measurements.
@@ -851,16 +852,11 @@ class ArticulatedTracker:
                 rows_r.append(r)
                 rows_s.append(sigma)
             self._last_counts = (matched, unselected)
-            twists = self._hip_twist_rows(q)
-            if twists is not None:
-                rows_H.append(twists[0])
-                rows_r.append(twists[1])
-                rows_s.append(twists[2])
-            limits = self._limit_rows(q)
-            if limits is not None:
-                rows_H.append(limits[0])
-                rows_r.append(limits[1])
-                rows_s.append(limits[2])
+            for pseudo in (self._hip_twist_rows(q), self._limit_rows(q)):
+                if pseudo is not None:
+                    rows_H.append(pseudo[0])
+                    rows_r.append(pseudo[1])
+                    rows_s.append(pseudo[2])
             if not rows_r:
                 return Measurements.empty(n)
             r = np.concatenate(rows_r)
@@ -1066,6 +1062,15 @@ class ArticulatedTracker:
             start.q, start.v, start.P, contours, rays, masks, LIMB_REFINE_ITERATIONS
         )
         return refined.q
+
+
+def _coordinate_rows(
+    n: int, index: np.ndarray, residual: np.ndarray, sigma: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pseudo-measurements of single coordinates: unit rows (len(index), n), residuals, noise."""
+    H = np.zeros((len(index), n))
+    H[np.arange(len(index)), index] = 1.0
+    return H, residual, np.full(len(index), sigma)
 
 
 def _mapped_covariance(P: np.ndarray, M: np.ndarray) -> np.ndarray:
