@@ -349,30 +349,6 @@ def test_no_contours_loses_the_track_and_contours_bring_it_back():
     assert back.status == TRACKING and back.initialised
 
 
-@pytest.mark.parametrize('given', [True, False], ids=['given_pose', 'from_silhouettes'])
-def test_a_start_decided_again_is_the_start_a_fresh_tracker_makes(given):
-    """start_again: the next frame starts the track as a fresh tracker would.
-
-    From the silhouettes if the track started from them, else from the track's pose.
-    """
-    scenario = make_scenario('studio-arm', BODY, frames=4)
-    q_true, _ = scenario.coordinates(np.arange(4) / scenario.frame_rate)
-    contours = [_silhouette_contours(scenario.cameras, q) for q in q_true]
-    initial = q_true[0] if given else None
-    tracker = ArticulatedTracker(BODY, scenario.cameras, initial_pose=initial)
-    without_one = {c: t for c, t in contours[0].items() if c != scenario.cameras[-1].name}
-    tracker.step(0, without_one)
-    tracker.step(1, without_one)
-    now = tracker.ekf.q.copy()  # a given pose is stale by now: the track's pose starts again
-    tracker.start_again()
-    again = tracker.step(2, contours[2])
-    fresh = ArticulatedTracker(BODY, scenario.cameras, initial_pose=now if given else None).step(
-        2, contours[2]
-    )
-    assert again.initialised and again.status == TRACKING
-    np.testing.assert_array_equal(again.q, fresh.q)
-
-
 def test_set_pose_refuses_non_finite_values():
     tracker = ArticulatedTracker(BODY, make_scenario('studio-arm', BODY).cameras)
     q = BODY.neutral()

@@ -421,7 +421,6 @@ class TrackerNode(Node):
         self.idle_since = time.monotonic()
         self.newest_contours_ns: dict[str, int] = {}
         self.set_pose_wall: float | None = None  # when an accepted set_pose is waiting for a frame
-        self.start_lacked: set[str] = set()  # expected cameras the track's start was without
         self.missed_assignments = 0  # joined frames in a row without the selector's assignment
         self.missed: dict[str, int] = dict.fromkeys(
             self.camera_names, 0
@@ -845,36 +844,17 @@ class TrackerNode(Node):
                 '(images lost or dropped in every contour_node)',
             )
             return 'no_contours'
-        if self.start_lacked and self.tracker.status == TRACKING:
-            # a start is decided on one frame: one that lacked a camera the graph expects (its
-            # contours went out before this node subscribed) started from fewer views than
-            # there are, so the start is decided again when that camera comes; once it is no
-            # longer expected (missing from MISSES_BEFORE_NOT_WAITING frames in a row), the
-            # start stands
-            arrived = self.start_lacked & frame.contours.keys()
-            if arrived:
-                self.tracker.start_again()
-                self.health.note(
-                    'starts_redone',
-                    f'a start decided without {", ".join(sorted(arrived))} decided again with it',
-                )
-                self.start_lacked = set()
-            elif not self.start_lacked & set(missing):
-                self.start_lacked = set()
-        if self.tracker.status != TRACKING:
-            self.start_lacked = set(missing)
-            if missing and self.body_silhouettes is not None:  # measured from every camera
-                self.health.drop(
-                    'start_incomplete',
-                    f'the body is measured on a frame with every expected camera; missing: '
-                    f'{", ".join(missing)}',
-                )
-                return 'waiting'
-            if missing:
-                self.health.note(
-                    'start_incomplete',
-                    f'a start without {", ".join(missing)}: decided again when it comes',
-                )
+        if self.tracker.status != TRACKING and missing:
+            # a start is decided on one frame, and one from fewer views than the graph has settled
+            # wrong (a restarted tracker whose first frame had one camera started turned round):
+            # it waits for a frame with every expected camera; one missing from
+            # MISSES_BEFORE_NOT_WAITING frames in a row is no longer expected
+            self.health.drop(
+                'start_incomplete',
+                f'a start waits for a frame with every expected camera; missing: '
+                f'{", ".join(missing)}',
+            )
+            return 'waiting'
         if self.body_silhouettes is not None and not self._measure_body(frame.contours):
             return 'waiting'
         if (
@@ -926,8 +906,6 @@ class TrackerNode(Node):
         if result.undecided:
             self.health.count('published_undecided')
             outcome += f' heading_confidence={result.heading_confidence:.3f}'
-        if self.start_lacked:
-            outcome += ' start_incomplete'
         return outcome
 
     def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:

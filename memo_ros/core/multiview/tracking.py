@@ -239,17 +239,6 @@ class ArticulatedTracker:
             raise ValueError(problem)
         self.reset(pose=np.asarray(q, float))
 
-    def start_again(self) -> None:
-        """Forget the track and start it again at the next frame, as it was started.
-
-        A start decided on a frame that lacked a camera is decided again once the camera comes:
-        from the silhouettes if it started from them; if it started from a given pose, from the
-        pose the track has now (the given one was the person's some frames ago: on studio-walk a
-        start again from it 2 frames late settled 25.6 mm off, from the track's pose 3.8 mm).
-        """
-        given = self.start_pose is not None and self.status == TRACKING
-        self.reset(use_initial_pose=False, pose=self.ekf.q.copy() if given else None)
-
     # ------------------------------------------------------------ frames
     def step(
         self,
@@ -287,9 +276,10 @@ class ArticulatedTracker:
             self.start_pose = self.pending_pose
             if from_pose:  # the heading a user or the studio gave counts as decided evidence
                 self.evidence = self.settings.twin_evidence
-            self._holding = False
             try:
-                self._initialise(stamp_ns, contours, rays)
+                # a given pose that lost to its twin (_given_start) decides nothing: the two are
+                # followed until the evidence separates them, as at a start from the silhouettes
+                from_pose = self._initialise(stamp_ns, contours, rays) and from_pose
             finally:
                 self._holding = True
             initialised = True
@@ -922,11 +912,12 @@ class ArticulatedTracker:
         return np.concatenate(parts), np.concatenate(points), np.concatenate(g), np.concatenate(r)
 
     # ------------------------------------------------------------ initialisation
-    def _initialise(self, stamp_ns: int, contours, rays) -> None:
-        """Start from the given pose, or from the silhouettes.
+    def _initialise(self, stamp_ns: int, contours, rays) -> bool:
+        """Start from the given pose or from the silhouettes; return whether the heading stands.
 
         Root from the rays through their centres, a standing posture at the best of several
-        headings, refined by the update itself.
+        headings, refined by the update itself, without the silhouette's hold (it pulled a fit
+        turned the wrong way round into place).
         """
         s = self.settings
         sigma_q = np.full(self.body.n_coordinates, s.init_sigma_rotation)
@@ -934,21 +925,17 @@ class ArticulatedTracker:
         sigma_v = np.full(self.body.n_coordinates, 0.5)
         sigma_v[:3] = 0.3
         masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        project = self.anatomy.project if s.hard_limits else np.asarray
+        self._holding = False
         if self.pending_pose is not None:
-            start = self.pending_pose
-            if s.limb_search > 0:  # the given pose's limbs need not be where the person's are
-                start, moved = self._search_limbs(start, contours, rays, masks)
-                if moved and s.twin_evidence > 0:
-                    start, moved = self._better_of_twins(start, moved, contours, rays, masks)
-                self.limbs_found += moved
+            start, decided = self._given_start(contours, rays, masks)
             self.ekf.initialize(start, None, sigma_q, sigma_v)
-            return
+            return decided
         centre = triangulate_centre(
             [self.cameras[c] for c in contours], [contours[c] for c in contours]
         )
         neutral = self.body.neutral()
         samples = sum(len(t) for t in contours.values())
-        project = self.anatomy.project if s.hard_limits else np.asarray
         candidates: list[tuple[float, np.ndarray, np.ndarray]] = []
         for k in range(max(s.init_headings, 1)):
             q = neutral.copy()
@@ -979,6 +966,7 @@ class ArticulatedTracker:
                 start, self._start_twin = found, project(self.anatomy.twin(found))
                 self.limbs_found += moved
         self.ekf.initialize(start, None, sigma_q, sigma_v)
+        return False
 
     def _search_limbs(self, q: np.ndarray, contours, rays, masks) -> tuple[np.ndarray, int]:
         """Return ``q`` with each limb moved to the posture that fits the frame (limb_search.py).
@@ -1027,30 +1015,36 @@ class ArticulatedTracker:
             left.remove(done)
         return q, len(self.limb_postures) - len(left)
 
-    def _better_of_twins(
-        self, found: np.ndarray, moved: int, contours, rays, masks
-    ) -> tuple[np.ndarray, int]:
-        """Return the given pose with its limbs found, or its twin so treated if it fits better.
+    def _given_start(self, contours, rays, masks) -> tuple[np.ndarray, bool]:
+        """Return the start from the given pose, its limbs found, and whether its heading stands.
 
-        With the number of limbs moved in the pose returned.
-
-        Limbs found for a pose given the wrong way round fit its silhouettes as well as they can
-        within the ranges, and its twin, with the mirrored limbs bent the wrong way and clamped,
-        then loses every later comparison: so the twin of the given pose gets the same search,
-        and the start is the better of the two by ``twin_evidence`` per sample.
+        Limbs found for a pose given the wrong way round fit its silhouettes as well as the
+        ranges let them, and its twin, with the mirrored limbs bent the wrong way and clamped,
+        would then lose every later comparison: so when the search moved a limb, the twin of the
+        given pose gets the same search, and starts if it fits better by ``twin_evidence`` per
+        sample.  The given heading then no longer stands: the pose with it is followed as the
+        twin until the evidence separates the two, as at a start from the silhouettes.
         """
-        samples = sum(len(t) for t in contours.values())
+        s = self.settings
         given = self.pending_pose
         assert given is not None
-        twin, twin_moved = self._search_limbs(
-            self.anatomy.project(self.anatomy.twin(given)), contours, rays, masks
-        )
-        own = self._fit_cost(found, contours, rays, masks, samples)
-        other = self._fit_cost(twin, contours, rays, masks, samples)
-        if other < own - self.settings.twin_evidence * samples:
-            self.twin_swaps += 1
-            return twin, twin_moved
-        return found, moved
+        start, moved = given, 0
+        if s.limb_search > 0:  # the given pose's limbs need not be where the person's are
+            start, moved = self._search_limbs(given, contours, rays, masks)
+        decided = True
+        if moved and s.twin_evidence > 0:
+            project = self.anatomy.project if s.hard_limits else np.asarray
+            twin, twin_moved = self._search_limbs(
+                project(self.anatomy.twin(given)), contours, rays, masks
+            )
+            samples = sum(len(t) for t in contours.values())
+            own = self._fit_cost(start, contours, rays, masks, samples)
+            other = self._fit_cost(twin, contours, rays, masks, samples)
+            if other < own - s.twin_evidence * samples:
+                self.twin_swaps += 1
+                self._start_twin, start, moved, decided = start, twin, twin_moved, False
+        self.limbs_found += moved
+        return start, decided
 
     def _refined_from(self, q: np.ndarray, contours, rays, masks) -> np.ndarray:
         """Return ``q`` after LIMB_REFINE_ITERATIONS updates from a broad prior, in the ranges."""
