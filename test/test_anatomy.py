@@ -118,6 +118,26 @@ def test_the_tracker_starts_the_right_way_round_from_the_silhouettes(heading):
     assert last.heading_confidence > 0.9 and not last.undecided
 
 
+def test_a_start_while_the_arm_is_raised_is_the_right_way_round():
+    """From the silhouettes of studio-arm at frame 160, the right arm raised forwards.
+
+    The start searches the limbs of its best candidates before their refits: with the limbs
+    searched only on the pose chosen, the torso turned to reach the arm and the track started,
+    and stayed, turned round (334 mm in the first frame, 315 mm in the sixth, when measured).
+    """
+    from memo_ros.core.simulation.scenarios import make_scenario
+
+    scenario = make_scenario('studio-arm', BODY, 320, 240)
+    times = (160 + np.arange(6)) / scenario.frame_rate
+    truth, _ = scenario.coordinates(times)
+    tracker = ArticulatedTracker(BODY, scenario.cameras, TrackerSettings())
+    for t, q in zip(times, truth):
+        result = tracker.step(int(t * 1e9), _contours(scenario.cameras, q))
+        _, true_origins = BODY.forward_kinematics(q)
+        error = 1000.0 * np.linalg.norm(result.origins - true_origins, axis=-1).mean()
+        assert error < 25.0, (t, error)
+
+
 def test_a_track_started_backwards_is_turned_round_by_its_twin():
     cameras = studio_cameras(320, 240)
     q_true = _bent_pose(45.0)
@@ -214,8 +234,9 @@ def test_the_hips_twist_ties_a_standing_dancers_heading_to_the_legs():
     """From the silhouettes of noisy images (the contour pipeline), the 4-camera ring.
 
     The elliptic torso hardly shows its heading: without the hips' twist measured, the pelvis
-    turns while both thighs turn back, and the heading drifts to 20 degrees off in the first
-    frames of studio-dance at 202 degrees; with it, it stays within 10.
+    turns while both thighs turn back, and the heading drifts to 14 degrees off in the first
+    frames of studio-dance at 202 degrees (measured); with it, it stays within 10 and at less
+    than half the drift.
     """
     from itertools import islice
 
@@ -240,5 +261,6 @@ def test_the_hips_twist_ties_a_standing_dancers_heading_to_the_legs():
             [tracker.step(int(t * 1e9), table).rotations for t, table in zip(times, tables)]
         )
         worst[sigma] = np.abs(heading_error(true_rotations, estimates)).max()
-    assert worst[0.0] > 15.0, worst  # the drift this guards against
-    assert worst[TrackerSettings().hip_twist_sigma] < 10.0, worst
+    tied = worst[TrackerSettings().hip_twist_sigma]
+    assert worst[0.0] > 2.0 * tied, worst  # the drift this guards against
+    assert tied < 10.0, worst

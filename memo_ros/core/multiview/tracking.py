@@ -916,8 +916,10 @@ class ArticulatedTracker:
         """Start from the given pose or from the silhouettes; return whether the heading stands.
 
         Root from the rays through their centres, a standing posture at the best of several
-        headings, refined by the update itself, without the silhouette's hold (it pulled a fit
-        turned the wrong way round into place).
+        headings, refined by the update itself.  The silhouette's hold is off while the headings
+        are searched (it pulled a fit turned the wrong way round into place) and on for the most
+        promising, each with its limbs searched first: a start while an arm is raised (a tracker
+        restarted mid-motion) otherwise turned the torso and twisted the neck to reach the arm.
         """
         s = self.settings
         sigma_q = np.full(self.body.n_coordinates, s.init_sigma_rotation)
@@ -951,20 +953,26 @@ class ArticulatedTracker:
             for own, other in (pair, pair[::-1]):
                 cost = self._fit_cost(own, contours, rays, masks, samples)
                 candidates.append((cost, own, other))
-        # the most promising are refitted within the ranges before one is chosen
-        best: tuple[float, np.ndarray, np.ndarray] | None = None
+        # the most promising, their limbs searched, are refitted within the ranges and held by the
+        # silhouette before one is chosen
+        self._holding = True
+        best: tuple[float, np.ndarray, np.ndarray, int] | None = None
         for _, own, other in sorted(candidates, key=lambda c: c[0])[: max(s.init_refits, 1)]:
+            moved = 0
+            if s.limb_search > 0:
+                own, moved = self._search_limbs(own, contours, rays, masks)
             self._refit(self.ekf, own, contours, rays, masks)
             cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
             if best is None or cost < best[0]:
-                best = (cost, self.ekf.q.copy(), other)
+                best = (cost, self.ekf.q.copy(), other, moved)
         assert best is not None
-        start, self._start_twin = best[1], best[2]
-        if s.limb_search > 0:  # the start's standing posture need not be the person's
-            found, moved = self._search_limbs(start, contours, rays, masks)
-            if moved:
-                start, self._start_twin = found, project(self.anatomy.twin(found))
-                self.limbs_found += moved
+        _, start, self._start_twin, moved = best
+        if s.limb_search > 0:  # the refit may have left a limb's posture behind
+            start, more = self._search_limbs(start, contours, rays, masks)
+            moved += more
+        if moved:
+            self._start_twin = project(self.anatomy.twin(start))
+            self.limbs_found += moved
         self.ekf.initialize(start, None, sigma_q, sigma_v)
         return False
 
