@@ -203,7 +203,6 @@ class ArticulatedTracker:
         self.pending_pose: np.ndarray | None = (
             pose if pose is not None else self.initial_pose if use_initial_pose else None
         )
-        self.start_pose: np.ndarray | None = None  # the pose the track started from, if given
         self.twin_ekf: ArticulatedEKF | None = None  # the leader's twin, while it is followed
         self._start_twin: np.ndarray | None = (
             None  # the start's best twin, from the heading search
@@ -273,7 +272,6 @@ class ArticulatedTracker:
         dt = 0.0
         if self.status != TRACKING:
             from_pose = self.pending_pose is not None
-            self.start_pose = self.pending_pose
             if from_pose:  # the heading a user or the studio gave counts as decided evidence
                 self.evidence = self.settings.twin_evidence
             try:
@@ -927,7 +925,6 @@ class ArticulatedTracker:
         sigma_v = np.full(self.body.n_coordinates, 0.5)
         sigma_v[:3] = 0.3
         masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
-        project = self.anatomy.project if s.hard_limits else np.asarray
         self._holding = False
         if self.pending_pose is not None:
             start, decided = self._given_start(contours, rays, masks)
@@ -949,7 +946,7 @@ class ArticulatedTracker:
             free = self.ekf.q.copy()
             # the free fit and its twin, both within the ranges: a fit turned backwards whose knees
             # had to overextend is, as its twin, a fit the right way round
-            pair = (project(free), project(self.anatomy.twin(free)))
+            pair = (self._in_ranges(free), self._in_ranges(self.anatomy.twin(free)))
             for own, other in (pair, pair[::-1]):
                 cost = self._fit_cost(own, contours, rays, masks, samples)
                 candidates.append((cost, own, other))
@@ -971,10 +968,14 @@ class ArticulatedTracker:
             start, more = self._search_limbs(start, contours, rays, masks)
             moved += more
         if moved:
-            self._start_twin = project(self.anatomy.twin(start))
+            self._start_twin = self._in_ranges(self.anatomy.twin(start))
             self.limbs_found += moved
         self.ekf.initialize(start, None, sigma_q, sigma_v)
         return False
+
+    def _in_ranges(self, q: np.ndarray) -> np.ndarray:
+        """Return ``q`` projected into the anatomical ranges (as it is without hard_limits)."""
+        return self.anatomy.project(q) if self.settings.hard_limits else np.asarray(q)
 
     def _search_limbs(self, q: np.ndarray, contours, rays, masks) -> tuple[np.ndarray, int]:
         """Return ``q`` with each limb moved to the posture that fits the frame (limb_search.py).
@@ -1041,9 +1042,8 @@ class ArticulatedTracker:
             start, moved = self._search_limbs(given, contours, rays, masks)
         decided = True
         if moved and s.twin_evidence > 0:
-            project = self.anatomy.project if s.hard_limits else np.asarray
             twin, twin_moved = self._search_limbs(
-                project(self.anatomy.twin(given)), contours, rays, masks
+                self._in_ranges(self.anatomy.twin(given)), contours, rays, masks
             )
             samples = sum(len(t) for t in contours.values())
             own = self._fit_cost(start, contours, rays, masks, samples)
