@@ -429,7 +429,8 @@ class ArticulatedTracker:
         """Track the leader's twin beside it; weigh the two by their fit to this frame's contours.
 
         The twin starts at every initialisation from the silhouettes, every
-        ``twin_recheck`` frames and at an inconsistent frame.  The evidence is
+        ``twin_recheck`` frames and at an inconsistent frame, each time refitted to the frame
+        from a broad prior as a start's candidates are.  The evidence is
         the difference of the two poses' robust contour costs per sample, with
         memory; past ``twin_evidence`` the better pose is kept (the twin taking
         the leader's place if it is the better), or after ``twin_max_frames``.
@@ -453,16 +454,20 @@ class ArticulatedTracker:
                 self.evidence = float(np.clip(self.evidence, -s.twin_evidence, s.twin_evidence))
         twin = self.twin_ekf
         counts = self._last_counts
-        if self.twin_age or not start_twin:
-            if self.twin_age:
-                twin.predict(dt)
+        if self.twin_age:
+            twin.predict(dt)
             twin.update(
                 self._measurement_function(contours, rays, masks), s.iterations, s.gate_sigma
             )
-        else:  # the twin of a fresh silhouette fit is refitted like the fit itself
+        else:  # a fresh twin is refitted like a start: the mirror of a wrong pose fits badly
+            # until it has settled, and one update let a turned track win every look again
+            rates, spread = twin.v.copy(), twin.P.copy()  # the leader's, mapped
             every = {c: np.ones(len(PART_NAMES), bool) for c in contours}
             self._refit(twin, twin.q, contours, rays, every)
-            twin.P = self.ekf.P.copy()
+            if start_twin:
+                twin.P = self.ekf.P.copy()
+            else:
+                twin.v, twin.P = rates, spread
         if s.hard_limits:
             self._clamp(twin)
         lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
