@@ -8,8 +8,10 @@ import sys
 
 import numpy as np
 import pytest
+import yaml
 
-from memo_ros.core.geometry.body import PART_NAMES
+from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
+from memo_ros.core.multiview.body_estimation import scaled_body
 from memo_ros.tools.benchmarks.dance import (
     _score,
     print_dance_benchmark,
@@ -114,6 +116,35 @@ def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
     assert fine['passed'] and fine['failures'] == []
 
 
+def test_a_dancer_of_other_proportions_is_tracked_with_the_measured_average_body(tmp_path, capsys):
+    average = load_default_body()
+    small = scaled_body(average, 1.60, 'small_160')
+    offsets = {joint: offset.copy() for joint, offset in small.joint_offsets.items()}
+    for side, sign in (('l', 1.0), ('r', -1.0)):
+        offsets[f'shoulder_{side}'][1] = sign * 0.16  # narrower than the scaled 0.192
+    narrow = Body(small.shapes, offsets, 'narrow_160')
+    path = tmp_path / 'narrow.yaml'
+    path.write_text(yaml.safe_dump({'body': narrow.to_dict()}), encoding='utf-8')
+    report = run_dance_benchmark(
+        [30.0], ['ring4'], frames=4, size=(320, 240), contours='silhouettes',
+        body_file=str(path), tracker_body='measured',
+    )  # fmt: skip
+    (run,) = report['runs']
+    assert report['body'] == str(path) and report['tracker_body'] == 'measured'
+    assert run['body_height_m'] == pytest.approx(narrow.standing_height())
+    assert run['measured_height_m'] == pytest.approx(narrow.standing_height(), abs=0.05)
+    assert run['untracked'] == 0 and run['mpjpe_mm_mean'] < 60.0, run
+    given = run_dance_benchmark(
+        [30.0], ['ring4'], frames=4, size=(320, 240), contours='silhouettes', body_file=str(path)
+    )['runs'][0]
+    assert given['measured_height_m'] is None
+    assert given['mpjpe_mm_mean'] != run['mpjpe_mm_mean']  # the two trackers' bodies differ
+    print_dance_benchmark(report)
+    out = capsys.readouterr().out
+    assert f'dancer: {path} (1.600 m)' in out
+    assert "the shipped average scaled to the height measured from the first frame's" in out
+
+
 @pytest.mark.parametrize(
     ('args', 'words'),
     [
@@ -129,6 +160,11 @@ def test_a_run_fails_where_its_frames_fail_and_says_during_which_moves():
         (('--tracker', 'hold_sigma_px=wide'), "'wide' is not a float"),
         (('--tracker', 'hold_hull=maybe'), "'maybe' is not true or false"),
         (('--tracker', 'recover_margin=-1'), 'must be finite and not negative'),
+        (
+            ('--tracker-body', 'guessed'),
+            "unknown --tracker-body 'guessed'; known: truth, measured",
+        ),
+        (('--body', 'no/such/body.yaml'), '--body no/such/body.yaml: '),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(args, words):

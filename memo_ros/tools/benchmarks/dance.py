@@ -8,10 +8,12 @@ alone (a studio without ``initial_pose``: the heading searched, then decided by 
 Every camera serves every part (no camera selection).
 The contours come from the contour pipeline the contour node runs, with its studio settings, on
 the simulated grey images (sensor noise, the background learnt from the empty frames first), or,
-with ``--contours silhouettes``, from the exact rendered silhouettes.  Per run: MPJPE mean and
-max, the heading error's max from 1 s on, frames with a side swap, the tracker's limb exchanges;
-then the worst of all runs, and where a run fails, in which time window, during which moves and
-in which parts.
+with ``--contours silhouettes``, from the exact rendered silhouettes.  The dancer is the shipped
+average adult or ``--body``; the tracker is given the dancer's body, or with ``--tracker-body
+measured`` the average scaled to the measured height, as for a real person.  Per run: MPJPE mean
+and max, the heading error's max from 1 s on, frames with a side swap, the tracker's limb
+exchanges; then the worst of all runs, and where a run fails, in which time window, during which
+moves and in which parts.
 """
 
 from __future__ import annotations
@@ -34,12 +36,16 @@ from memo_ros.core.evaluation.metrics import (
 )
 from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
 from memo_ros.core.geometry.render import render
+from memo_ros.core.multiview.body_estimation import estimate_body, silhouette_from_contours
 from memo_ros.core.simulation.scenarios import RIGS, Scenario, dance_moves, make_scenario
 
 HEADINGS_DEG = tuple(range(0, 360, 45))
 SIZE = (320, 240)  # half the studio's 640x480: the full sweep in a few minutes on 2 cores
 CONTOURS = ('images', 'silhouettes')
 STARTS = ('given', 'silhouettes')  # the true first pose, or automatic initialisation
+# the tracker's body: the dancer's own, or the shipped average scaled to the height measured from
+# the first frame's silhouettes (tracker_node's body_source: silhouettes, as for a real person)
+TRACKER_BODIES = ('truth', 'measured')
 NOISE = 3.0  # grey levels, simulate's default
 # issue 16's Done-when for studio-dance
 MPJPE_MEAN_MM = 30.0
@@ -77,6 +83,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'silhouettes (automatic initialisation from the first frame, no pose given)',
     )
     parser.add_argument(
+        '--body',
+        help="dance: the dancer's body, a body YAML (config/body_average_adult.yaml's format; "
+        'default: that shipped average adult)',
+    )
+    parser.add_argument(
+        '--tracker-body',
+        default='truth',
+        help="dance: truth (the tracker is given the dancer's body; default) or measured (the "
+        "shipped average adult scaled to the height measured from the first frame's "
+        'silhouettes, as tracker_node does with body_source: silhouettes)',
+    )
+    parser.add_argument(
         '--tracker',
         action='append',
         default=[],
@@ -101,6 +119,10 @@ def command_words(args: argparse.Namespace) -> list[str]:
     """Return this suite's options as command-line words (for the report's command line)."""
     words = ['--headings', args.headings, '--rig', dance_rig(args), '--size', args.size]
     words += ['--contours', args.contours, '--start', args.start, '--jobs', str(args.jobs)]
+    if args.body is not None:
+        words += ['--body', args.body]
+    if args.tracker_body != 'truth':
+        words += ['--tracker-body', args.tracker_body]
     for setting in args.tracker:
         words += ['--tracker', setting]
     return words + ([] if args.frames is None else ['--frames', str(args.frames)])
@@ -129,6 +151,15 @@ def measure(args: argparse.Namespace) -> dict:
         raise CliError(f'unknown --contours {args.contours!r}; known: {", ".join(CONTOURS)}')
     if args.start not in STARTS:
         raise CliError(f'unknown --start {args.start!r}; known: {", ".join(STARTS)}')
+    if args.tracker_body not in TRACKER_BODIES:
+        raise CliError(
+            f'unknown --tracker-body {args.tracker_body!r}; known: {", ".join(TRACKER_BODIES)}'
+        )
+    if args.body is not None:
+        try:
+            Body.from_yaml(args.body)
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            raise CliError(f'--body {args.body}: {error}') from None
     if args.frames is not None and args.frames < 1:
         raise CliError('--frames must be at least 1')
     if args.jobs < 1:
@@ -143,6 +174,8 @@ def measure(args: argparse.Namespace) -> dict:
         args.jobs,
         tracker_overrides(args.tracker),
         args.start,
+        args.body,
+        args.tracker_body,
     )
 
 
@@ -185,14 +218,18 @@ def run_dance_benchmark(
     jobs: int = 1,
     overrides: dict | None = None,
     start: str = 'given',
+    body_file: str | None = None,
+    tracker_body: str = 'truth',
 ) -> dict:
     """Track studio-dance from every heading on every rig; return the runs and the worst figures.
 
     ``jobs`` runs go in parallel, each in its own process with one BLAS and one OpenCV thread.
+    ``body_file``: the dancer's body YAML (default the shipped average); ``tracker_body``: see
+    :data:`TRACKER_BODIES`.
     """
     overrides = overrides or {}
     cases = [
-        (rig, float(h), frames, size, contours, overrides, start)
+        (rig, float(h), frames, size, contours, overrides, start, body_file, tracker_body)
         for rig in rigs
         for h in headings_deg
     ]
@@ -220,6 +257,8 @@ def run_dance_benchmark(
         'jobs': jobs,
         'tracker': overrides,
         'start': start,
+        'body': body_file or 'config/body_average_adult.yaml',
+        'tracker_body': tracker_body,
         'limits': {
             'mpjpe_mm_mean': MPJPE_MEAN_MM,
             'mpjpe_mm_max': MPJPE_MAX_MM,
@@ -233,12 +272,22 @@ def run_dance_benchmark(
 
 
 def _run_case(case: tuple) -> dict:
-    """Run one (rig, heading, frames, size, contours, overrides, start) case; a pool's task."""
+    """Run one case of :func:`run_dance_benchmark`; a pool's task."""
     import cv2
 
     cv2.setNumThreads(1)
-    rig, heading, frames, size, contours, overrides, start = case
-    return track_dance(rig, heading, frames, size, contours, overrides=overrides, start=start)
+    rig, heading, frames, size, contours, overrides, start, body_file, tracker_body = case
+    return track_dance(
+        rig,
+        heading,
+        frames,
+        size,
+        contours,
+        body=Body.from_yaml(body_file) if body_file else None,
+        overrides=overrides,
+        start=start,
+        tracker_body=tracker_body,
+    )
 
 
 def track_dance(
@@ -250,11 +299,13 @@ def track_dance(
     body: Body | None = None,
     overrides: dict | None = None,
     start: str = 'given',
+    tracker_body: str = 'truth',
 ) -> dict:
     """Track one studio-dance offline and score it against its truth, frame by frame.
 
-    ``overrides``: TrackerSettings fields other than their defaults; ``start``: given (the true
-    first pose) or silhouettes (no pose given).
+    ``body``: the dancer's; ``overrides``: TrackerSettings fields other than their defaults;
+    ``start``: given (the true first pose) or silhouettes (no pose given); ``tracker_body``: truth
+    (the dancer's body) or measured (:func:`measured_body`).
     """
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
@@ -267,12 +318,18 @@ def track_dance(
     true_r, true_o = body.forward_kinematics(q_true)
     settings = TrackerSettings(**(overrides or {}))
     initial = q_true[0] if start == 'given' else None
-    tracker = ArticulatedTracker(body, scenario.cameras, settings, initial_pose=initial)
     est_r, est_o = np.full_like(true_r, np.nan), np.full_like(true_o, np.nan)
     tracked = np.zeros(len(times), bool)
     seconds = 0.0  # in the tracker's steps
     result = None
+    measured_height = None
+    tracker = None
     for k, tables in enumerate(_contour_frames(scenario, body, q_true, contours)):
+        if tracker is None:
+            model = body
+            if tracker_body == 'measured':
+                model, measured_height = measured_body(scenario.cameras, tables)
+            tracker = ArticulatedTracker(model, scenario.cameras, settings, initial_pose=initial)
         started = time.perf_counter()
         result = tracker.step(int(round(times[k] * 1e9)), tables)
         seconds += time.perf_counter() - started
@@ -294,8 +351,21 @@ def track_dance(
             'limb_exchanges': result.limb_exchanges if result else 0,
             'twin_swaps': result.twin_swaps if result else 0,
             'tracker_seconds': seconds,
+            'body_height_m': body.standing_height(),
+            'measured_height_m': measured_height,
         },
     )
+
+
+def measured_body(cameras: list, tables: dict[str, np.ndarray]) -> tuple[Body, float]:
+    """Return the shipped average adult scaled to the height of one frame's silhouettes.
+
+    As tracker_node measures a person with ``body_source: silhouettes`` (its ``body_frames``
+    frames; one here), and that height.
+    """
+    seen = [c for c in cameras if len(tables.get(c.name, ()))]
+    masks = [silhouette_from_contours(tables[c.name], c.width, c.height) for c in seen]
+    return estimate_body([(seen, masks)], load_default_body())
 
 
 def _contour_frames(
@@ -460,6 +530,19 @@ def print_dance_benchmark(report: dict) -> None:
         f'studio-dance tracked offline by ArticulatedTracker(TrackerSettings({settings})), '
         f'{started}, every camera for every part; contours: {source}'
     )
+    runs = report['runs']
+    dancer = f'dancer: {report.get("body", "config/body_average_adult.yaml")}'
+    if runs:
+        dancer += f' ({runs[0].get("body_height_m", float("nan")):.3f} m)'
+    if report.get('tracker_body', 'truth') == 'measured':
+        heights = [r['measured_height_m'] for r in runs if r.get('measured_height_m')]
+        span = f'{min(heights):.3f} - {max(heights):.3f} m' if heights else 'no run'
+        print(
+            f"{dancer}; the tracker's body: the shipped average scaled to the height measured "
+            f"from the first frame's silhouettes ({span})"
+        )
+    else:
+        print(f"{dancer}; the tracker is given the dancer's body")
     print(
         f'Done-when: MPJPE mean <= {limits["mpjpe_mm_mean"]:g} mm, no frame over '
         f'{limits["mpjpe_mm_max"]:g} mm, heading error < '
