@@ -251,8 +251,8 @@ PARAMS: tuple[Param, ...] = (
     Param(
         'twin_recheck',
         30,
-        'frames between two looks at the twin once decided (0: only at a start from the '
-        'silhouettes and at inconsistent frames)',
+        'frames between two looks at the twin once decided, each refitting the twin from a '
+        'broad prior (0: only at a start from the silhouettes and at inconsistent frames)',
         0,
         100000,
     ),
