@@ -30,7 +30,7 @@ from visualization_msgs.msg import MarkerArray
 from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
-    silhouette_from_contours,
+    frame_silhouettes,
 )
 from memo_ros.core.multiview.motion import (
     ProcessNoise,
@@ -914,13 +914,7 @@ class TrackerNode(Node):
         Gather the frame's silhouettes; once body_frames are in, scale the body to the measured
         height and start a tracker for it. True when the body is measured (track this frame).
         """
-        cameras = [c for c in self.studio.cameras if len(contours.get(c.name, ()))]
-        self.body_silhouettes.append(
-            (
-                cameras,
-                [silhouette_from_contours(contours[c.name], c.width, c.height) for c in cameras],
-            )
-        )
+        self.body_silhouettes.append(frame_silhouettes(self.studio.cameras, contours))
         if len(self.body_silhouettes) < self.params['body_frames']:
             self.health.drop('measuring_body', 'frame used to measure the body, not tracked')
             return False

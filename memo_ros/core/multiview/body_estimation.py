@@ -40,6 +40,11 @@ class HullMeasure:
         return self.top - self.bottom
 
 
+Silhouettes = tuple[
+    list[Camera], list[np.ndarray]
+]  # one frame: the cameras and their person masks
+
+
 def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.ndarray:
     """Return the person mask (bool (height, width)) enclosed by a contour table's closed outlines.
 
@@ -59,6 +64,15 @@ def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.n
     ]
     cv2.fillPoly(mask, [p for p in polygons if len(p) >= 3], 1)
     return mask.view(bool)
+
+
+def frame_silhouettes(cameras: list[Camera], tables: dict[str, np.ndarray]) -> Silhouettes:
+    """Return one frame's cameras that have contours and their silhouettes, as estimate_body takes.
+
+    ``tables`` maps camera names to contour tables (the contour nodes' output).
+    """
+    seen = [c for c in cameras if len(tables.get(c.name, ()))]
+    return seen, [silhouette_from_contours(tables[c.name], c.width, c.height) for c in seen]
 
 
 def ray_meeting_point(cameras: list[Camera], masks: list[np.ndarray]) -> np.ndarray | None:
@@ -149,11 +163,6 @@ def _carve(
         return None
     largest = 1 + int(np.argmax(ndimage.sum_labels(volume, labels, np.arange(1, count + 1))))
     return grid[(labels == largest).reshape(-1)]
-
-
-Silhouettes = tuple[
-    list[Camera], list[np.ndarray]
-]  # one frame: the cameras and their person masks
 
 
 def measure_height(

@@ -36,7 +36,7 @@ from memo_ros.core.evaluation.metrics import (
 )
 from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
 from memo_ros.core.geometry.render import render
-from memo_ros.core.multiview.body_estimation import estimate_body, silhouette_from_contours
+from memo_ros.core.multiview.body_estimation import estimate_body, frame_silhouettes
 from memo_ros.core.simulation.scenarios import RIGS, Scenario, dance_moves, make_scenario
 
 HEADINGS_DEG = tuple(range(0, 360, 45))
@@ -46,6 +46,7 @@ STARTS = ('given', 'silhouettes')  # the true first pose, or automatic initialis
 # the tracker's body: the dancer's own, or the shipped average scaled to the height measured from
 # the first frame's silhouettes (tracker_node's body_source: silhouettes, as for a real person)
 TRACKER_BODIES = ('truth', 'measured')
+DEFAULT_BODY = 'config/body_average_adult.yaml'  # the dancer without --body, as reported
 NOISE = 3.0  # grey levels, simulate's default
 # issue 16's Done-when for studio-dance
 MPJPE_MEAN_MM = 30.0
@@ -257,7 +258,7 @@ def run_dance_benchmark(
         'jobs': jobs,
         'tracker': overrides,
         'start': start,
-        'body': body_file or 'config/body_average_adult.yaml',
+        'body': body_file or DEFAULT_BODY,
         'tracker_body': tracker_body,
         'limits': {
             'mpjpe_mm_mean': MPJPE_MEAN_MM,
@@ -363,9 +364,7 @@ def measured_body(cameras: list, tables: dict[str, np.ndarray]) -> tuple[Body, f
     As tracker_node measures a person with ``body_source: silhouettes`` (its ``body_frames``
     frames; one here), and that height.
     """
-    seen = [c for c in cameras if len(tables.get(c.name, ()))]
-    masks = [silhouette_from_contours(tables[c.name], c.width, c.height) for c in seen]
-    return estimate_body([(seen, masks)], load_default_body())
+    return estimate_body([frame_silhouettes(cameras, tables)], load_default_body())
 
 
 def _contour_frames(
@@ -531,7 +530,7 @@ def print_dance_benchmark(report: dict) -> None:
         f'{started}, every camera for every part; contours: {source}'
     )
     runs = report['runs']
-    dancer = f'dancer: {report.get("body", "config/body_average_adult.yaml")}'
+    dancer = f'dancer: {report.get("body", DEFAULT_BODY)}'
     if runs:
         dancer += f' ({runs[0].get("body_height_m", float("nan")):.3f} m)'
     if report.get('tracker_body', 'truth') == 'measured':
