@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections import Counter
 import os
 import threading
+import time
 import traceback
 from typing import Callable
 
@@ -42,6 +43,7 @@ class NodeHealth:
         self._level = DiagnosticStatus.OK
         self._lock = threading.Lock()
         self._failed: set[str] = set()  # callbacks whose traceback was logged
+        self._logged: dict[str, float] = {}  # reason -> monotonic time of its last log line
         restarts = os.environ.get('MEMO_ROS_RESTARTS', '0')  # set by `memo-ros launch`
         if restarts.isdigit() and int(restarts) > 0:
             self.values['restarts'] = restarts
@@ -60,16 +62,16 @@ class NodeHealth:
             self._problem = f'{reason}: {message}'
             self._level = DiagnosticStatus.WARN
             count = self.dropped[reason]
-        self._node.get_logger().warning(
-            f'{message} [dropped: {reason}, {count} so far]', throttle_duration_sec=LOG_THROTTLE_S
-        )
+        if self._due(reason):
+            self._node.get_logger().warning(f'{message} [dropped: {reason}, {count} so far]')
 
     def note(self, reason: str, message: str) -> None:
         """Count an event that is not a drop (a reset, a warm-up) and log it throttled."""
         with self._lock:
             self.counters[reason] += 1
             self._problem = f'{reason}: {message}'
-        self._node.get_logger().info(message, throttle_duration_sec=LOG_THROTTLE_S)
+        if self._due(reason):
+            self._node.get_logger().info(message)
 
     def warn(self, reason: str, message: str) -> None:
         """Count an event that needs attention (a reset of learnt state); log it as a warning."""
@@ -77,7 +79,23 @@ class NodeHealth:
             self.counters[reason] += 1
             self._problem = f'{reason}: {message}'
             self._level = DiagnosticStatus.WARN
-        self._node.get_logger().warning(message, throttle_duration_sec=LOG_THROTTLE_S)
+        if self._due(reason):
+            self._node.get_logger().warning(message)
+
+    def _due(self, reason: str) -> bool:
+        """Return whether ``reason`` may log now: once per LOG_THROTTLE_S for each reason.
+
+        Throttled here, not by rclpy's ``throttle_duration_sec``: that throttles per call site (one
+        for every reason) and finds its caller on the stack at every call, a tenth of a contour
+        node's CPU while images were being lost.
+        """
+        now = time.monotonic()
+        with self._lock:
+            last = self._logged.get(reason)
+            if last is not None and now - last < LOG_THROTTLE_S:
+                return False
+            self._logged[reason] = now
+            return True
 
     def internal_error(self, what: str, exc: BaseException) -> None:
         """Count an exception of ``what`` as internal_error; log its first traceback in full."""
