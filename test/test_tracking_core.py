@@ -355,3 +355,33 @@ def test_set_pose_refuses_non_finite_values():
     q[4] = np.nan
     with pytest.raises(ValueError):
         tracker.set_pose(q)
+
+
+def test_a_search_due_while_the_tracker_is_behind_waits_for_a_frame_that_can_afford_it():
+    """A look at the twin due while newer frames wait is put off (counted), then taken."""
+    scenario = make_scenario('studio-arm', BODY, frames=9)
+    times = np.arange(9) / scenario.frame_rate
+    q_true, _ = scenario.coordinates(times)
+    settings = TrackerSettings(twin_recheck=3)
+    tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=q_true[0])
+    refits: list[int] = []
+    refit = tracker._refit
+    tracker._refit = lambda *args, **kwargs: refits.append(1) or refit(*args, **kwargs)
+    deferred = []
+    for k, t in enumerate(times):
+        behind = 0 < k < 8  # frame 0 is the start, which always searches
+        result = tracker.step(
+            int(t * 1e9),
+            _silhouette_contours(scenario.cameras, q_true[k]),
+            None,
+            lambda: not behind,
+        )
+        assert result.status == TRACKING
+        deferred.append(result.searches_deferred)
+        if k == 0:
+            refits.clear()
+        if k == 7:
+            assert not refits, 'a look ran while the tracker was behind'
+    assert deferred[7] >= 5  # the look was due from frame 3 on, asked again every frame
+    assert refits, 'the look due since frame 3 did not run once the tracker caught up'
+    assert deferred[8] == deferred[7]

@@ -313,6 +313,15 @@ PARAMS: tuple[Param, ...] = (
         0.0,
         3600.0,
     ),
+    Param(
+        'defer_searches',
+        True,
+        'the live latency policy for the searches (a limb exchange try, the search again for '
+        'lost limbs, a look at the twin; each costs several frames of work): one due while a '
+        'newer frame has been heard of (its camera_info or contours came) is put off to a frame '
+        'with none newer (counted searches_deferred); false runs each when due (a paced replay '
+        'never has a newer frame waiting, so its figures are the same either way)',
+    ),
 )
 SET_POSE_TTL_S = 2.0  # wall time an accepted set_pose waits for the frame that starts from it
 ANNOUNCED_WAIT_S = 2.0  # how long a frame only camera_info announced waits (contour_node's loss)
@@ -755,6 +764,11 @@ class TrackerNode(Node):
                 )
         return stamp, frame, missing
 
+    def _newer_frame_waits(self, stamp: int) -> bool:
+        """Return whether a frame newer than ``stamp`` was heard of (the tracker is behind)."""
+        with self.lock:
+            return any(s > stamp for s in self.pending)
+
     def _skip(self, stamp: int) -> None:
         """Return a frame passed over because a newer one is ready.
 
@@ -872,7 +886,10 @@ class TrackerNode(Node):
             selected = {
                 c: mask for c, mask in frame.assignment.masks().items() if c in self.camera_names
             }
-        result = self.tracker.step(stamp, frame.contours, selected)
+        may_search = (
+            (lambda: not self._newer_frame_waits(stamp)) if self.params['defer_searches'] else None
+        )
+        result = self.tracker.step(stamp, frame.contours, selected, may_search)
         self.idle_since = time.monotonic()
         self.health.set('tracking_state', result.status)
         self.health.set('cameras_in_frame', ','.join(sorted(frame.contours)))
@@ -888,6 +905,7 @@ class TrackerNode(Node):
         self.health.set('limb_exchanges', result.limb_exchanges)
         self.health.set('recoveries', result.recoveries)
         self.health.set('limbs_found', result.limbs_found)
+        self.health.set('searches_deferred', result.searches_deferred)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
         if result.status == LOST:

@@ -14,6 +14,7 @@ tracked.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 import time
 
@@ -152,6 +153,7 @@ class FrameResult:
     limb_exchanges: int = 0  # times a pair of limbs fitted better exchanged, since the start
     recoveries: int = 0  # times a re-search from a broad prior fitted better, since the start
     limbs_found: int = 0  # limbs a start moved to a posture of the limb search, since the start
+    searches_deferred: int = 0  # searches put off because a newer frame waited, since the start
 
 
 class ArticulatedTracker:
@@ -182,6 +184,8 @@ class ArticulatedTracker:
         self.limb_exchanges = 0
         self.recoveries = 0
         self.limbs_found = 0  # limbs a start moved to a posture that fits better (_search_limbs)
+        self.searches_deferred = 0  # searches put off because may_search said no (step)
+        self._may_search: Callable[[], bool] = _always
         self.limb_postures = limb_postures(body)
         self._fields_of: dict | None = None  # the contours the silhouette fields were made from
         self._fields: dict = {}
@@ -211,6 +215,7 @@ class ArticulatedTracker:
         self.twin_check = False  # the twin is followed only to check a decided leader
         self.twin_age = 0
         self.since_twin = 0  # frames since the twin was last followed
+        self.look_wanted = False  # a look at the twin is due since an inconsistent frame
         # each pair of limbs' left-right difference when it was last tried exchanged
         self.exchange_tried = {
             pair: self.anatomy.difference(self.pending_pose, pair)
@@ -244,12 +249,18 @@ class ArticulatedTracker:
         stamp_ns: int,
         contours: dict[str, np.ndarray],
         selected: dict[str, np.ndarray] | None = None,
+        may_search: Callable[[], bool] | None = None,
     ) -> FrameResult:
         """Track one frame.
 
         Contour tables per camera; ``selected`` maps a camera to its (P,) part mask.
+        ``may_search`` is asked before each search a tracked frame starts (a limb exchange try,
+        the search again for lost limbs, a look at the twin; each costs several frames' work);
+        False puts it off to a later frame (``searches_deferred``): a live node behind its cameras
+        keeps its latency instead. None: every search runs when due.
         """
         start = time.perf_counter()
+        self._may_search = may_search or _always
         contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
         samples = sum(len(t) for t in contours.values())
         if not samples:
@@ -356,6 +367,7 @@ class ArticulatedTracker:
             self.limb_exchanges,
             self.recoveries,
             self.limbs_found,
+            self.searches_deferred,
         )
 
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
@@ -439,8 +451,12 @@ class ArticulatedTracker:
         self.since_twin += 1
         if self.twin_ekf is None:
             due = s.twin_recheck > 0 and self.since_twin >= s.twin_recheck
-            if not (start_twin or due or self.bad_frames == 1):  # a run of bad frames: one look
+            self.look_wanted |= self.bad_frames == 1  # a run of bad frames: one look
+            if not (start_twin or due or self.look_wanted):
                 return
+            if not start_twin and not self._search_allowed():
+                return  # due again next frame
+            self.look_wanted = False
             self.twin_ekf = self._twin_filter(self.ekf, free)
             # a look again while decided is a check: the leader keeps its place unless the twin
             # wins within TWIN_CHECK_FRAMES; a start is a contest until the evidence decides
@@ -509,6 +525,8 @@ class ArticulatedTracker:
             difference = self.anatomy.difference(self.ekf.q, pair)
             if np.max(np.abs(difference - self.exchange_tried[pair])) < s.limb_exchange:
                 continue
+            if not self._search_allowed():
+                break  # the pair stays due
             self.exchange_tried[pair] = difference
             q, M = self.anatomy.exchange(self.ekf.q, pair)
             trial = self._refined(
@@ -564,6 +582,9 @@ class ArticulatedTracker:
             self._last_counts = counts
             return
         if cost > self.usual_cost + s.recover_margin:
+            if not self._search_allowed():  # the usual is not raised by a frame left unsearched
+                self._last_counts = counts
+                return
             if not exact:
                 cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
                 cost /= max(samples, 1)
@@ -587,6 +608,13 @@ class ArticulatedTracker:
                 self.recoveries += 1
         self.usual_cost = s.recover_memory * self.usual_cost + (1 - s.recover_memory) * cost
         self._last_counts = counts
+
+    def _search_allowed(self) -> bool:
+        """Return whether a due search may run in this frame; count it deferred if not."""
+        if self._may_search():
+            return True
+        self.searches_deferred += 1
+        return False
 
     def _refined(self, q, v, P, contours, rays, masks, iterations: int = 1) -> ArticulatedEKF:
         """Return a filter at (q, v, P) after ``iterations`` more updates, in the ranges."""
@@ -1189,3 +1217,8 @@ def triangulate_centre(cameras: list[Camera], tables: list[np.ndarray]) -> np.nd
     if used < 2:
         return None
     return np.linalg.solve(A, b)
+
+
+def _always() -> bool:
+    """Every search may run (step's default)."""
+    return True
