@@ -73,12 +73,16 @@ def joint_state_message(stamp_ns: int, names, positions, velocities=None) -> Joi
     return msg
 
 
-def _pose(rotation: np.ndarray, origin: np.ndarray) -> Pose:
-    x, y, z, w = matrix_to_quat(rotation)
-    return Pose(
-        position=Point(x=float(origin[0]), y=float(origin[1]), z=float(origin[2])),
-        orientation=Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)),
-    )
+def _poses(rotations: np.ndarray, origins: np.ndarray) -> list[Pose]:
+    """Poses of (N, 3, 3) rotations at (N, 3) origins: one quaternion conversion for all."""
+    quats = matrix_to_quat(np.asarray(rotations, float)).tolist()
+    return [
+        Pose(
+            position=Point(x=o[0], y=o[1], z=o[2]),
+            orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
+        for q, o in zip(quats, np.asarray(origins, float).tolist())
+    ]
 
 
 def pose_array_message(stamp_ns: int, rotations: np.ndarray, origins: np.ndarray) -> PoseArray:
@@ -86,9 +90,7 @@ def pose_array_message(stamp_ns: int, rotations: np.ndarray, origins: np.ndarray
 
     One pose per part in part order (origin = proximal joint, +z along the part).
     """
-    return PoseArray(
-        header=world_header(stamp_ns), poses=[_pose(r, o) for r, o in zip(rotations, origins)]
-    )
+    return PoseArray(header=world_header(stamp_ns), poses=_poses(rotations, origins))
 
 
 def marker_array_message(
@@ -105,20 +107,17 @@ def marker_array_message(
     """
     markers = []
     r, g, b, a = colour
-    for i, name in enumerate(PART_NAMES):
-        centre = origins[i] + rotations[i][:, 2] * (body.lengths[i] / 2.0)
+    centres = origins + rotations[:, :, 2] * (body.lengths[:, None] / 2.0)
+    sizes = np.column_stack([2 * body.semi_axes[:, :2], body.lengths]).tolist()
+    for i, (name, pose) in enumerate(zip(PART_NAMES, _poses(rotations, centres))):
         m = Marker(
             header=world_header(stamp_ns),
             ns=MARKER_NAMESPACE,
             id=i,
             type=Marker.CYLINDER,
             action=Marker.ADD,
-            pose=_pose(rotations[i], centre),
-            scale=Vector3(
-                x=float(2 * body.semi_axes[i, 0]),
-                y=float(2 * body.semi_axes[i, 1]),
-                z=float(body.lengths[i]),
-            ),
+            pose=pose,
+            scale=Vector3(x=sizes[i][0], y=sizes[i][1], z=sizes[i][2]),
             color=ColorRGBA(r=r, g=g, b=b, a=a),
             text=name,
         )
@@ -136,7 +135,7 @@ def root_pose_message(
     Like robot_localization's output.
     """
     msg = PoseWithCovarianceStamped(header=world_header(stamp_ns))
-    msg.pose.pose = _pose(rotation, origin)
+    msg.pose.pose = _poses(rotation[None], np.asarray(origin, float)[None])[0]
     msg.pose.covariance = [float(v) for v in np.asarray(covariance, float).reshape(36)]
     return msg
 
