@@ -5,6 +5,7 @@ Init, build, spin, and a one-line error for a refused configuration.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -13,7 +14,7 @@ from typing import Callable
 import cv2
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -21,6 +22,7 @@ from memo_ros.ros.dds import use_node_dds_profile
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SPIN_PERIOD_S = 0.1  # how soon a stop signal is noticed: the executor's longest wait
+EXECUTOR_ENV = 'MEMO_ROS_EXECUTOR'  # events (default, where rclpy has it) or single_threaded
 
 
 M_MMAP_THRESHOLD = -3  # glibc mallopt parameter (malloc.h)
@@ -45,6 +47,24 @@ def release_large_buffers() -> bool:
         return bool(ctypes.CDLL(name).mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
     except (OSError, AttributeError):  # not glibc
         return False
+
+
+def make_executor() -> Executor:
+    """Return rclpy's EventsExecutor, or its SingleThreadedExecutor if asked or not available.
+
+    The single-threaded executor rebuilds its wait set in Python at every spin, over every
+    subscription, timer, service and QoS event handler of the node: under cProfile that was half
+    of the tracker node's intake thread. The events executor waits in C++ (rclpy 7.1's
+    ``rclpy.experimental``); ``MEMO_ROS_EXECUTOR=single_threaded`` keeps the classic one.
+    """
+    if os.environ.get(EXECUTOR_ENV, 'events') != 'single_threaded':
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # an rclpy without it
+            pass
+        else:
+            return EventsExecutor()
+    return SingleThreadedExecutor()
 
 
 def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
@@ -77,7 +97,7 @@ def run_node(name: str, make_node: Callable[[], Node], args: list[str] | None = 
         print(f'{name}: error: {" ".join(str(exc).split())}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
-    executor = SingleThreadedExecutor()
+    executor = make_executor()
     executor.add_node(node)
     try:
         while not stop.is_set() and node.context.ok():
