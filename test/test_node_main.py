@@ -1,0 +1,23 @@
+"""The executor every node spins: rclpy's events executor unless the environment asks otherwise."""
+
+from __future__ import annotations
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+
+from memo_ros.ros.node_main import EXECUTOR_ENV, make_executor
+
+
+def test_the_events_executor_by_default_and_the_classic_one_when_asked(monkeypatch):
+    rclpy.init(args=[])  # a context only: no node, so nothing goes on the network
+    try:
+        monkeypatch.delenv(EXECUTOR_ENV, raising=False)
+        events = make_executor()
+        assert type(events).__name__ == 'EventsExecutor'
+        events.shutdown()
+        monkeypatch.setenv(EXECUTOR_ENV, 'single_threaded')
+        classic = make_executor()
+        assert isinstance(classic, SingleThreadedExecutor)
+        classic.shutdown()
+    finally:
+        rclpy.try_shutdown()
