@@ -207,7 +207,8 @@ def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
 
     x and y kept apart: a sum over a last axis of two is numpy's slowest way to add two numbers.
     """
-    abx, aby = (b - a)[..., 0, None], (b - a)[..., 1, None]  # (..., 1)
+    ab = b - a
+    abx, aby = ab[..., 0, None], ab[..., 1, None]  # (..., 1)
     length2 = np.maximum(abx * abx + aby * aby, 1e-12)
     apx = points[:, 0] - a[..., 0, None]  # (..., N)
     apy = points[:, 1] - a[..., 1, None]
