@@ -341,3 +341,37 @@ def test_a_start_waits_for_every_expected_camera_but_not_for_a_dead_one(ros_env,
     assert after == ['waiting'] * 3 + ['tracking'] * (frames - 7), after
     assert values['dropped.start_incomplete'] == '5', values
     assert int(values['initialisations']) == 2, values
+
+
+def test_frames_that_queue_up_are_updated_with_iterations_behind_and_all_tracked(
+    ros_env, tmp_path
+):
+    """A burst of frames (a tracker behind its cameras): each is still tracked, in order.
+
+    The ones with a newer frame waiting that follow a tracked one take iterations_behind
+    (counted tracked_behind); the start and a frame after a gap take every iteration.
+    """
+    frames = 8
+    scenario, q, studio = _studio_arm(tmp_path, frames)
+    process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'max_lag:=3600.0')
+    cams = [c.name for c in scenario.cameras]
+    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    with ros_session('burst_feeder', ros_env.domain_id) as (node, executor):
+        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 100) for c in cams}
+        processed: list[Header] = []
+        node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
+        values = _tracker_diagnostics(node)
+        spin_until = partial(
+            _spin_until, executor, describe=lambda: [m.frame_id for m in processed]
+        )
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        time.sleep(0.5)
+        for k in range(frames):  # all at once: frames 1 - 6 find a newer one waiting
+            for cam in cams:
+                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+        spin_until(lambda: len(processed) >= frames)
+        spin_until(lambda: int(values.get('published', 0)) >= frames, timeout=5.0)
+    process.terminate()
+    process.wait(timeout=20)
+    assert [m.frame_id.split(' ')[0] for m in processed] == ['tracking'] * frames
+    assert 1 <= int(values['tracked_behind']) <= frames - 2, values

@@ -385,3 +385,26 @@ def test_a_search_due_while_the_tracker_is_behind_waits_for_a_frame_that_can_aff
     assert deferred[7] >= 5  # the look was due from frame 3 on, asked again every frame
     assert refits, 'the look due since frame 3 did not run once the tracker caught up'
     assert deferred[8] == deferred[7]
+
+
+def test_a_frame_updated_with_fewer_iterations_relinearises_fewer_times():
+    """step(..., iterations=1) linearises the measurement once; the settings' 2 otherwise."""
+    scenario = make_scenario('studio-arm', BODY, frames=3)
+    times = np.arange(3) / scenario.frame_rate
+    q_true, _ = scenario.coordinates(times)
+    tracker = ArticulatedTracker(BODY, scenario.cameras, TrackerSettings(), initial_pose=q_true[0])
+    tables = [_silhouette_contours(scenario.cameras, q_true[k]) for k in range(3)]
+    tracker.step(0, tables[0], None, lambda: False)
+    calls: list[int] = []
+    measurement = tracker._measurement_function
+
+    def counted(*args):
+        measure = measurement(*args)
+        return lambda q: calls.append(1) or measure(q)
+
+    tracker._measurement_function = counted
+    for k, iterations in ((1, 1), (2, None)):
+        calls.clear()
+        result = tracker.step(int(times[k] * 1e9), tables[k], None, lambda: False, iterations)
+        assert result.status == TRACKING
+        assert len(calls) == (iterations or TrackerSettings().iterations), (k, len(calls))

@@ -250,6 +250,7 @@ class ArticulatedTracker:
         contours: dict[str, np.ndarray],
         selected: dict[str, np.ndarray] | None = None,
         may_search: Callable[[], bool] | None = None,
+        iterations: int | None = None,
     ) -> FrameResult:
         """Track one frame.
 
@@ -257,7 +258,8 @@ class ArticulatedTracker:
         ``may_search`` is asked before each search a tracked frame starts (a limb exchange try,
         the search again for lost limbs, a look at the twin; each costs several frames' work);
         False puts it off to a later frame (``searches_deferred``): a live node behind its cameras
-        keeps its latency instead. None: every search runs when due.
+        keeps its latency instead. None: every search runs when due. ``iterations``: this frame's
+        relinearisations instead of the settings' (a live node behind its cameras takes fewer).
         """
         start = time.perf_counter()
         self._may_search = may_search or _always
@@ -305,7 +307,7 @@ class ArticulatedTracker:
             return last[0]
 
         report = self.ekf.update(
-            measure_and_keep, self.settings.iterations, self.settings.gate_sigma
+            measure_and_keep, iterations or self.settings.iterations, self.settings.gate_sigma
         )
         updated = self.ekf
         self.stamp_ns = stamp_ns
