@@ -168,6 +168,24 @@ PARAMS = (
     Param('cleanup_max_iterations', 10, 'cleanup: repetitions until stable (upper bound)', 1, 100),
     Param('min_region_area', 200, 'smallest kept region, pixels', 1, 10_000_000),
     Param(
+        'window_margin',
+        32,
+        "background segmenter: segment only the box around the previous frame's person (and "
+        'the tracked region) grown by this many pixels; the whole frame every '
+        'full_frame_every frames, while the background is learnt, and again at once when the '
+        "person reaches the box's edge; 0 segments every whole frame",
+        0,
+        100_000,
+    ),
+    Param(
+        'full_frame_every',
+        15,
+        'window_margin: every this many frames the whole frame is segmented (a person who '
+        'enters the view, or a second one, is found within that many frames)',
+        1,
+        1_000_000,
+    ),
+    Param(
         'keep_regions',
         'all',
         'keep the largest region, all regions above the minimum area, or those '
@@ -272,6 +290,8 @@ def pipeline_settings(params: dict) -> PipelineSettings:
         fill_above=p['cleanup_fill_above'],
         max_iterations=p['cleanup_max_iterations'],
         min_area=p['min_region_area'],
+        window_margin=p['window_margin'],
+        full_frame_every=p['full_frame_every'],
         keep=p['keep_regions'],
         learn_margin=p['learn_margin'],
         contour_step=p['contour_step'],

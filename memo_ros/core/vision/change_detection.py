@@ -175,15 +175,18 @@ def detect_changes(
     threshold: float,
     noise_factor: float = NOISE_FACTOR,
     workspace: Workspace | None = None,
+    sigma: float | None = None,
 ) -> ChangeResult:
     """Eq. (1) with T raised to ``noise_factor`` x the measured difference noise.
 
-    0 = Rohr's fixed T.
+    0 = Rohr's fixed T.  ``sigma``: the noise as measured before, for a window of a frame
+    that the person fills too much for its lower quartile to be noise.
     """
     ws = (workspace or Workspace()).buffers(np.shape(frame_k)[:2])
     difference = _difference(frame_k, frame_j, ws.difference)
     energy = _energy(difference, ws)
-    sigma = noise_sigma(energy) if noise_factor > 0 else 0.0
+    if sigma is None:
+        sigma = noise_sigma(energy) if noise_factor > 0 else 0.0
     applied = max(float(threshold), noise_factor * sigma)
     mask = np.greater(energy, np.float32(N_WINDOW * applied**2), out=ws.mask)  # eq. (1)^2: > n T^2
     return ChangeResult(mask, difference, sigma, applied)

@@ -50,6 +50,8 @@ _EMPTY_OUTLINE = np.zeros((0, 2), np.int32)
 PIXEL_FLOOR = 0.5
 # cleanup k2 for exact frames: fill pinholes only (a 1 px slit's closed end has 7 neighbours)
 EXACT_FILL_ABOVE = 7
+# a window larger than this share of the frame is not worth it: the whole frame is segmented
+WINDOW_MOST = 0.6
 
 
 # ------------------------------------------------------------------ regions
@@ -173,6 +175,7 @@ class BackgroundSegmenter:
         self.noise_factor = float(noise_factor)
         self.compensate_gain = bool(compensate_gain)
         self.workspace = Workspace()
+        self.window_workspace = Workspace()  # a window's buffers, of its own size
         self.gain = 1.0
         self.reset()
 
@@ -196,35 +199,54 @@ class BackgroundSegmenter:
         self._scaled = None
         self._learning, self._count = None, 0
 
-    def _reference(self, background: np.ndarray, grey: np.ndarray) -> np.ndarray:
-        """Return the background.
+    def _reference(
+        self, background: np.ndarray, grey: np.ndarray, window: tuple | None = None
+    ) -> np.ndarray:
+        """Return the background (within ``window``, a tuple of slices, if given).
 
-        Scaled by the frame's global gain (slow lighting changes) when that is on.
+        Scaled by the whole frame's global gain (slow lighting changes) when that is on.
         """
+        part = background if window is None else background[window]
         if not self.compensate_gain:
-            return background
+            return part
         sample_bg = background[::8, ::8].astype(np.float32)
         sample = grey[::8, ::8].astype(np.float32)
         valid = sample_bg > 16.0
         gain = float(np.median(sample[valid] / sample_bg[valid])) if valid.any() else 1.0
         self.gain = gain
         if abs(gain - 1.0) < 0.005:  # below half a grey level at mid grey: no rescaling
-            return background
-        if self._scaled is None or self._scaled.shape != grey.shape:
-            self._scaled = np.empty(grey.shape, np.float32)
+            return part
+        if self._scaled is None or self._scaled.shape != part.shape:
+            self._scaled = np.empty(part.shape, np.float32)
         # OpenCV takes a scalar factor; its stubs admit only arrays (opencv-python#1008)
         return cv2.multiply(  # type: ignore[call-overload]
-            background, gain, dst=self._scaled, dtype=cv2.CV_32F
+            part, gain, dst=self._scaled, dtype=cv2.CV_32F
         )
 
-    def segment(self, grey: np.ndarray) -> ChangeResult | None:
-        """Eq. (1) against the background (raw mask, difference, noise), None while learning."""
+    def segment(
+        self,
+        grey: np.ndarray,
+        window: tuple[int, int, int, int] | None = None,
+        sigma: float | None = None,
+    ) -> ChangeResult | None:
+        """Eq. (1) against the background (raw mask, difference, noise), None while learning.
+
+        ``window`` (x, y, w, h): only there (the result is the window's size), with the noise
+        ``sigma`` of an earlier whole frame.
+        """
         grey = np.asarray(grey)
         if self.background is not None and self.background.shape == grey.shape:
-            reference = self._reference(self.background, grey)
-            frame = grey if reference.dtype == grey.dtype else grey.astype(np.float32)
+            view = None if window is None else _slices(window)
+            reference = self._reference(self.background, grey, view)
+            frame = grey if view is None else grey[view]
+            frame = frame if reference.dtype == frame.dtype else frame.astype(np.float32)
             return detect_changes(
-                frame, reference, self.threshold, self.noise_factor, self.workspace
+                frame,
+                reference,
+                self.threshold,
+                self.noise_factor,
+                self.workspace if view is None else self.window_workspace,
+                sigma,
             )
         if self._learning is None or self._learning.shape[1:] != grey.shape:
             self._learning = np.empty((self.learn_frames,) + grey.shape, np.uint8)
@@ -366,6 +388,10 @@ class SegmenterSettings:
     compensate_gain: bool = True  # background: follow slow global lighting changes
     learn_margin: int = 6  # sequence: pixels around the person not learnt from, px
     track_margin: int = 15  # tracked: the previous frame's person grown by this much is the prior
+    # background: segment only the box around the previous person (and the tracked region) grown
+    # by this many pixels (0: every whole frame), every full_frame_every frames the whole frame
+    window_margin: int = 0
+    full_frame_every: int = 15
 
 
 class Segmenter:
@@ -399,6 +425,9 @@ class Segmenter:
         self.roi: np.ndarray | None = None  # where the tracked body is expected (bool), if known
         self.previous: np.ndarray | None = None  # the previous frame's kept person mask
         self._image: np.ndarray | None = None
+        self._window: tuple[int, int, int, int] | None = None  # this frame's (window_margin)
+        self._sigma: float | None = None  # the noise of the last whole frame
+        self._since_whole = 0  # frames segmented in a window since the last whole one
 
     @property
     def colour(self) -> bool:
@@ -409,6 +438,8 @@ class Segmenter:
         """Forget the frame history (previous frame or learnt background) and tracked region."""
         self.method.reset()
         self.roi = self.previous = None
+        self._window = self._sigma = None
+        self._since_whole = 0
 
     def set_roi(self, roi: np.ndarray | None) -> None:
         """Where the tracked body is expected in the next frames (bool (H, W)); None: not known."""
@@ -420,8 +451,56 @@ class Segmenter:
         None while warming up.
         """
         self._image = image
-        self.last_change = self.method.segment(image)
+        self._window = self._choose_window(np.shape(image)[:2])
+        if self._window is None:
+            return self._whole_frame()
+        assert isinstance(self.method, BackgroundSegmenter)
+        self.last_change = self.method.segment(image, self._window, self._sigma)
+        self._since_whole += 1
         return self.last_change
+
+    def _whole_frame(self) -> ChangeResult | None:
+        """Eq. (1) over the whole frame (its noise kept for the windows that follow)."""
+        self._window = None
+        assert self._image is not None  # raw() keeps the frame before any segmentation
+        self.last_change = self.method.segment(self._image)
+        if self.last_change is not None:
+            self._sigma, self._since_whole = self.last_change.sigma, 0
+        return self.last_change
+
+    def _choose_window(self, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+        """Return the box (x, y, w, h) this frame is segmented in, None for the whole frame.
+
+        window_margin: the previous frame's person and the tracked region, grown; the whole
+        frame every full_frame_every frames (a person who enters is found then), while the
+        background is learnt, and when the box would be most of the frame anyway.
+        """
+        s = self.settings
+        if (
+            s.window_margin <= 0
+            or not isinstance(self.method, BackgroundSegmenter)
+            or self.method.warming_up
+            or self._sigma is None
+            or self._since_whole + 1 >= s.full_frame_every
+            or self.previous is None
+            or self.previous.shape != shape
+        ):
+            return None
+        boxes = [cv2.boundingRect(self.previous.view(np.uint8))]
+        if self.roi is not None and self.roi.shape == shape:
+            boxes.append(cv2.boundingRect(self.roi.view(np.uint8)))
+        boxes = [b for b in boxes if b[2] and b[3]]
+        if not boxes:
+            return None
+        height, width = shape
+        m = s.window_margin
+        x0 = max(min(b[0] for b in boxes) - m, 0)
+        y0 = max(min(b[1] for b in boxes) - m, 0)
+        x1 = min(max(b[0] + b[2] for b in boxes) + m, width)
+        y1 = min(max(b[1] + b[3] for b in boxes) + m, height)
+        if (x1 - x0) * (y1 - y0) > WINDOW_MOST * width * height:
+            return None
+        return x0, y0, x1 - x0, y1 - y0
 
     def _prior(self, shape: tuple[int, int]) -> np.ndarray | None:
         """Return the tracked region.
@@ -437,36 +516,74 @@ class Segmenter:
         return cv2.dilate(self.previous.view(np.uint8), kernel).view(bool)
 
     def refine(self, change: ChangeResult) -> Segmentation:
-        """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) mask."""
-        s = self.settings
-        raw = change.mask
-        cleaned = cleanup(raw, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
-        if s.refine and cleaned.any():
-            pixel_threshold = max(s.pixel_factor * change.sigma, PIXEL_FLOOR)
-            exact = change.sigma < s.exact_noise
-            x, y, w, h = _grown_box(cleaned, 3)
-            window = np.s_[y : y + h, x : x + w]
-            sharp = refine_boundary(
-                raw[window], cleaned[window], change.difference[window], pixel_threshold
-            )
-            fill_above = s.fill_above
-            if exact:  # no noise to clean: keep slits between parts, which cleanup would close
-                sharp = carve_background_channels(
-                    sharp, change.difference[window], pixel_threshold
-                )
-                fill_above = max(fill_above, EXACT_FILL_ABOVE)
-            cleaned = np.zeros_like(cleaned)
-            cleaned[window] = cleanup(
-                sharp, s.delete_below, fill_above, s.max_iterations, s.fill_holes
-            )
-        prior = self._prior(cleaned.shape) if s.keep == 'tracked' else None
-        mask, regions = select_regions(cleaned, s.min_area, s.keep, prior)
+        """Cleanup, boundary refinement, cleanup again, region selection of a raw eq. (1) mask.
+
+        A window whose person reaches its inner edge is given up: the whole frame is segmented.
+        """
+        shape = np.shape(self._image)[:2] if self._image is not None else change.mask.shape
+        refined = self._refined(change, self._window, shape)
+        if refined is None:
+            whole = self._whole_frame()
+            assert whole is not None  # the background that gave the window is still there
+            refined = self._refined(whole, None, shape)
+            assert refined is not None
+        raw, mask, regions = refined
         self.previous = mask
         learn = getattr(self.method, 'learn', None)
         if learn is not None and self._image is not None:
             roi = self.roi if self.roi is not None and self.roi.shape == mask.shape else None
             learn(self._image, mask, roi)
-        return Segmentation(raw.copy(), mask, regions, union_box(regions), False)
+        return Segmentation(raw, mask, regions, union_box(regions), False)
+
+    def _refined(
+        self,
+        change: ChangeResult,
+        window: tuple[int, int, int, int] | None,
+        shape: tuple[int, int],
+    ) -> tuple[np.ndarray, np.ndarray, list[Region]] | None:
+        """Return the raw mask, the kept mask and its regions (whole-frame coordinates).
+
+        None when the window's person touches one of its edges inside the frame.
+        """
+        s = self.settings
+        raw = change.mask
+        cleaned = cleanup(raw, s.delete_below, s.fill_above, s.max_iterations, s.fill_holes)
+        if window is not None and _reaches_inner_edge(cleaned, window, shape):
+            return None
+        if s.refine and cleaned.any():
+            pixel_threshold = max(s.pixel_factor * change.sigma, PIXEL_FLOOR)
+            exact = change.sigma < s.exact_noise
+            x, y, w, h = _grown_box(cleaned, 3)
+            box = np.s_[y : y + h, x : x + w]
+            sharp = refine_boundary(
+                raw[box], cleaned[box], change.difference[box], pixel_threshold
+            )
+            fill_above = s.fill_above
+            if exact:  # no noise to clean: keep slits between parts, which cleanup would close
+                sharp = carve_background_channels(sharp, change.difference[box], pixel_threshold)
+                fill_above = max(fill_above, EXACT_FILL_ABOVE)
+            cleaned = np.zeros_like(cleaned)
+            cleaned[box] = cleanup(
+                sharp, s.delete_below, fill_above, s.max_iterations, s.fill_holes
+            )
+        prior = self._prior(shape) if s.keep == 'tracked' else None
+        if window is None:
+            mask, regions = select_regions(cleaned, s.min_area, s.keep, prior)
+            return raw.copy(), mask, regions
+        view = _slices(window)
+        mask, regions = select_regions(
+            cleaned, s.min_area, s.keep, None if prior is None else prior[view]
+        )
+        x0, y0 = window[:2]
+        whole_raw, whole_mask = np.zeros(shape, bool), np.zeros(shape, bool)
+        whole_raw[view], whole_mask[view] = raw, mask
+        moved = [
+            Region(
+                r.area, (r.box[0] + x0, r.box[1] + y0, r.box[2], r.box[3]), r.outline + (x0, y0)
+            )
+            for r in regions
+        ]
+        return whole_raw, whole_mask, moved
 
     def process(self, image: np.ndarray) -> Segmentation:
         """Segment one frame: grey uint8 (H, W), or (H, W, C) for the sequence segmenter."""
@@ -474,6 +591,26 @@ class Segmenter:
         if change is None:
             return Segmentation.empty(np.shape(image)[:2], True)
         return self.refine(change)
+
+
+def _slices(window: tuple[int, int, int, int]) -> tuple[slice, slice]:
+    """Return the array slices (rows, columns) of a box (x, y, w, h)."""
+    x, y, w, h = window
+    return np.s_[y : y + h, x : x + w]
+
+
+def _reaches_inner_edge(
+    mask: np.ndarray, window: tuple[int, int, int, int], shape: tuple[int, int]
+) -> bool:
+    """Whether ``mask`` (the window's) has a flag on an edge of the window inside the frame."""
+    x, y, w, h = window
+    height, width = shape
+    return bool(
+        (y > 0 and mask[0].any())
+        or (y + h < height and mask[-1].any())
+        or (x > 0 and mask[:, 0].any())
+        or (x + w < width and mask[:, -1].any())
+    )
 
 
 def _grown_box(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:

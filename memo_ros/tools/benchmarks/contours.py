@@ -36,6 +36,16 @@ SEGMENTERS = {  # segmenter -> settings it runs with (the recommended defaults)
         'keep': 'all',
     },
     'change': {'segmenter': 'change', 'threshold': 12.0, 'keep': 'largest'},
+    # the background segmenter in the box around the previous person, as contour_node runs it
+    # (window_margin, full_frame_every: its defaults)
+    'windowed': {
+        'segmenter': 'background',
+        'threshold': 4.0,
+        'background_frames': 10,
+        'keep': 'all',
+        'window_margin': 32,
+        'full_frame_every': 15,
+    },
 }
 STAGES = ('convert', 'segment', 'cleanup', 'contours', 'edges')
 
@@ -171,7 +181,11 @@ def print_contour_benchmark(report: dict) -> None:
         )
         edges = 'on' if case['edges'] else 'off'
         print(f'{case["encoding"]:8} {case["segmenter"]:10} {edges:5} {case["frames"]:6d} {cells}')
-    print('figures: median (p90) milliseconds per frame; edges off: no edge lines computed')
+    print(
+        'figures: median (p90) milliseconds per frame; edges off: no edge lines computed; '
+        "windowed: the background segmenter within 32 px of the previous frame's person, the "
+        'whole frame every 15th frame (contour_node window_margin, full_frame_every)'
+    )
     on = {(c['encoding'], c['segmenter']): c for c in report['cases'] if c['edges']}
     for c in report['cases']:
         if not c['edges']:
@@ -180,6 +194,21 @@ def print_contour_benchmark(report: dict) -> None:
                 f'{c["encoding"]} {c["segmenter"]}: without edge lines '
                 f'{c["median_ms"]["total"] / with_edges:.2f} of the time with them '
                 f'({with_edges - c["median_ms"]["total"]:.2f} ms less at the median)'
+            )
+    for c in report['cases']:
+        whole = [
+            w
+            for w in report['cases']
+            if (w['encoding'], w['segmenter'], w['edges'])
+            == (c['encoding'], 'background', c['edges'])
+        ]
+        if c['segmenter'] == 'windowed' and whole:
+            ratio = c['median_ms']['total'] / whole[0]['median_ms']['total']
+            edges = 'with' if c['edges'] else 'without'
+            print(
+                f'{c["encoding"]} windowed {edges} edge lines: {ratio:.2f} of the time of whole '
+                f'frames ({whole[0]["median_ms"]["total"] - c["median_ms"]["total"]:.2f} ms less '
+                'at the median)'
             )
 
 
