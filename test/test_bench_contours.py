@@ -27,3 +27,4 @@ def test_each_case_is_timed_with_and_without_edge_lines(tmp_path, capsys):
     print_contour_benchmark(report)
     out = capsys.readouterr().out
     assert out.count('without edge lines') == len(ENCODINGS) * len(SEGMENTERS)
+    assert out.count('of the time of whole frames') == len(ENCODINGS) * 2  # windowed, per edges

@@ -204,11 +204,11 @@ def print_contour_benchmark(report: dict) -> None:
         ]
         if c['segmenter'] == 'windowed' and whole:
             ratio = c['median_ms']['total'] / whole[0]['median_ms']['total']
-            edges = 'with' if c['edges'] else 'without'
+            edges = 'edges on' if c['edges'] else 'edges off'
             print(
-                f'{c["encoding"]} windowed {edges} edge lines: {ratio:.2f} of the time of whole '
-                f'frames ({whole[0]["median_ms"]["total"] - c["median_ms"]["total"]:.2f} ms less '
-                'at the median)'
+                f'{c["encoding"]} windowed, {edges}: {ratio:.2f} of the time of whole frames '
+                f'({whole[0]["median_ms"]["total"] - c["median_ms"]["total"]:.2f} ms less at the '
+                'median)'
             )
 
 
