@@ -71,6 +71,19 @@ def _spin_until(executor, condition, describe, timeout: float = 30.0, period: fl
     assert condition(), describe()
 
 
+def _contour_feeder(node, executor, cams: list[str], depth: int = 10):
+    """Contour publishers per camera, the /memo/processed reports, the tracker's diagnostics.
+
+    And a ``spin_until`` that describes what was reported.
+    """
+    pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', depth) for c in cams}
+    processed: list[Header] = []
+    node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
+    values = _tracker_diagnostics(node)
+    spin_until = partial(_spin_until, executor, describe=lambda: [m.frame_id for m in processed])
+    return pubs, processed, values, spin_until
+
+
 def _cloud(table, stamp_ns: int) -> PointCloud2:
     msg = array_to_pointcloud(table)
     msg.header.stamp = stamp_from_ns(stamp_ns)
@@ -295,15 +308,8 @@ def test_a_start_waits_for_every_expected_camera_but_not_for_a_dead_one(ros_env,
     cams = [c.name for c in scenario.cameras]
     tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
     with ros_session('incomplete_start_feeder', ros_env.domain_id) as (node, executor):
-        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
-        processed: list[Header] = []
-        node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
-        values = _tracker_diagnostics(node)
+        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
         reset = node.create_client(Trigger, '/tracker_node/reset')
-
-        spin_until = partial(
-            _spin_until, executor, describe=lambda: [m.frame_id for m in processed]
-        )
 
         spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
         time.sleep(0.5)
@@ -357,13 +363,7 @@ def test_frames_that_queue_up_are_updated_with_iterations_behind_and_all_tracked
     cams = [c.name for c in scenario.cameras]
     tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
     with ros_session('burst_feeder', ros_env.domain_id) as (node, executor):
-        pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 100) for c in cams}
-        processed: list[Header] = []
-        node.create_subscription(Header, PROCESSED_TOPIC, processed.append, 100)
-        values = _tracker_diagnostics(node)
-        spin_until = partial(
-            _spin_until, executor, describe=lambda: [m.frame_id for m in processed]
-        )
+        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams, depth=100)
         spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
         time.sleep(0.5)
         for k in range(frames):  # all at once: frames 1 - 6 find a newer one waiting
