@@ -45,6 +45,7 @@ def _graph(context):
                     'reliable_images': True,
                     'image_queue_depth': REPLAY_IMAGE_QUEUE,
                     'roi_wait': REPLAY_ROI_WAIT,
+                    'window_margin': 0,
                 }
                 if reliable
                 else {},

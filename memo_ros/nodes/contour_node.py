@@ -173,7 +173,8 @@ PARAMS = (
         "background segmenter: segment only the box around the previous frame's person (and "
         'the tracked region) grown by this many pixels; the whole frame every '
         'full_frame_every frames, while the background is learnt, and again at once when the '
-        "person reaches the box's edge; 0 segments every whole frame",
+        "person reaches the box's edge (a live latency measure); 0 segments every whole frame "
+        '(memo-ros launch --reliable-images, and so memo-ros replay, set 0)',
         0,
         100_000,
     ),

@@ -141,6 +141,8 @@ def graph_commands(
                 f'image_queue_depth:={REPLAY_IMAGE_QUEUE}',
                 '-p',
                 f'roi_wait:={REPLAY_ROI_WAIT}',
+                '-p',
+                'window_margin:=0',  # a replay segments whole frames, as paced figures are made
             ]
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
     if role == 'cameras':

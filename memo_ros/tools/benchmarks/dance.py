@@ -400,9 +400,10 @@ def _contour_frames(
     options = ImagingOptions(noise=NOISE)
     rng = np.random.default_rng(options.seed)
     backgrounds = {c.name: background_image(c, options.seed) for c in cameras}
-    pipelines = {
-        c.name: ContourPipeline(pipeline_settings(scenario.contour_parameters)) for c in cameras
-    }
+    # every whole frame, as a replay segments them (memo-ros launch --reliable-images): the
+    # window around the previous person is a live latency measure (contour_node window_margin)
+    params = {**scenario.contour_parameters, 'window_margin': 0}
+    pipelines = {c.name: ContourPipeline(pipeline_settings(params)) for c in cameras}
     for k in range(scenario.empty_frames + len(q)):
         b = k - scenario.empty_frames  # the subject's frame; negative while the studio is empty
         rotations, origins = body.forward_kinematics(q[max(b, 0)])
