@@ -23,6 +23,7 @@ def _graph(context):
         REPLAY_JOIN_TIMEOUT,
         REPLAY_MAX_LAG,
         REPLAY_ROI_WAIT,
+        REPLAY_WINDOW_MARGIN,
         RESPAWN_DELAY_S,
         ROLES,
     )
@@ -45,7 +46,7 @@ def _graph(context):
                     'reliable_images': True,
                     'image_queue_depth': REPLAY_IMAGE_QUEUE,
                     'roi_wait': REPLAY_ROI_WAIT,
-                    'window_margin': 0,
+                    'window_margin': REPLAY_WINDOW_MARGIN,
                 }
                 if reliable
                 else {},

@@ -36,6 +36,7 @@ REPLAY_ROI_WAIT = (
     0.5  # s a contour node waits for the tracked body of the previous image in a replay
 )
 REPLAY_MAX_LAG = 3600.0  # s: a replay tracks every frame, however far behind it falls
+REPLAY_WINDOW_MARGIN = 0  # a replay segments whole frames: the contour window is a live measure
 REPLAY_JOIN_TIMEOUT = (
     3.0  # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
 )
@@ -142,7 +143,7 @@ def graph_commands(
                 '-p',
                 f'roi_wait:={REPLAY_ROI_WAIT}',
                 '-p',
-                'window_margin:=0',  # a replay segments whole frames, as paced figures are made
+                f'window_margin:={REPLAY_WINDOW_MARGIN}',
             ]
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
     if role == 'cameras':

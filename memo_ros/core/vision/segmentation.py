@@ -200,13 +200,13 @@ class BackgroundSegmenter:
         self._learning, self._count = None, 0
 
     def _reference(
-        self, background: np.ndarray, grey: np.ndarray, window: tuple | None = None
+        self, background: np.ndarray, grey: np.ndarray, view: tuple[slice, slice] | None = None
     ) -> np.ndarray:
-        """Return the background (within ``window``, a tuple of slices, if given).
+        """Return the background (its ``view``, if given).
 
         Scaled by the whole frame's global gain (slow lighting changes) when that is on.
         """
-        part = background if window is None else background[window]
+        part = background if view is None else background[view]
         if not self.compensate_gain:
             return part
         sample_bg = background[::8, ::8].astype(np.float32)

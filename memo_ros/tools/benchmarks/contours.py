@@ -28,24 +28,13 @@ CAMERA = 'cam_front'
 SIZE = (640, 480)
 TIMED_FRAMES = 50
 ENCODINGS = ('mono8', 'bgr8')
+BACKGROUND = {'segmenter': 'background', 'threshold': 4.0, 'background_frames': 10, 'keep': 'all'}
 SEGMENTERS = {  # segmenter -> settings it runs with (the recommended defaults)
-    'background': {
-        'segmenter': 'background',
-        'threshold': 4.0,
-        'background_frames': 10,
-        'keep': 'all',
-    },
+    'background': BACKGROUND,
     'change': {'segmenter': 'change', 'threshold': 12.0, 'keep': 'largest'},
-    # the background segmenter in the box around the previous person, as contour_node runs it
-    # (window_margin, full_frame_every: its defaults)
-    'windowed': {
-        'segmenter': 'background',
-        'threshold': 4.0,
-        'background_frames': 10,
-        'keep': 'all',
-        'window_margin': 32,
-        'full_frame_every': 15,
-    },
+    # the background segmenter in the box around the previous person, as a live contour_node
+    # runs it (window_margin, full_frame_every: its defaults)
+    'windowed': {**BACKGROUND, 'window_margin': 32, 'full_frame_every': 15},
 }
 STAGES = ('convert', 'segment', 'cleanup', 'contours', 'edges')
 
@@ -181,34 +170,30 @@ def print_contour_benchmark(report: dict) -> None:
         )
         edges = 'on' if case['edges'] else 'off'
         print(f'{case["encoding"]:8} {case["segmenter"]:10} {edges:5} {case["frames"]:6d} {cells}')
+    windowed = report['settings']['windowed']
     print(
         'figures: median (p90) milliseconds per frame; edges off: no edge lines computed; '
-        "windowed: the background segmenter within 32 px of the previous frame's person, the "
-        'whole frame every 15th frame (contour_node window_margin, full_frame_every)'
+        f'windowed: the background segmenter within {windowed["window_margin"]} px of the '
+        f"previous frame's person, the whole frame every {windowed['full_frame_every']}th frame "
+        '(contour_node window_margin, full_frame_every)'
     )
-    on = {(c['encoding'], c['segmenter']): c for c in report['cases'] if c['edges']}
-    for c in report['cases']:
-        if not c['edges']:
-            with_edges = on[(c['encoding'], c['segmenter'])]['median_ms']['total']
+    cases = {(c['encoding'], c['segmenter'], c['edges']): c for c in report['cases']}
+    for (encoding, segmenter, edges), c in cases.items():
+        if not edges:
+            with_edges = cases[(encoding, segmenter, True)]['median_ms']['total']
             print(
-                f'{c["encoding"]} {c["segmenter"]}: without edge lines '
+                f'{encoding} {segmenter}: without edge lines '
                 f'{c["median_ms"]["total"] / with_edges:.2f} of the time with them '
                 f'({with_edges - c["median_ms"]["total"]:.2f} ms less at the median)'
             )
-    for c in report['cases']:
-        whole = [
-            w
-            for w in report['cases']
-            if (w['encoding'], w['segmenter'], w['edges'])
-            == (c['encoding'], 'background', c['edges'])
-        ]
-        if c['segmenter'] == 'windowed' and whole:
-            ratio = c['median_ms']['total'] / whole[0]['median_ms']['total']
-            edges = 'edges on' if c['edges'] else 'edges off'
+    for (encoding, segmenter, edges), c in cases.items():
+        whole = cases.get((encoding, 'background', edges))
+        if segmenter == 'windowed' and whole:
+            ratio = c['median_ms']['total'] / whole['median_ms']['total']
             print(
-                f'{c["encoding"]} windowed, {edges}: {ratio:.2f} of the time of whole frames '
-                f'({whole[0]["median_ms"]["total"] - c["median_ms"]["total"]:.2f} ms less at the '
-                'median)'
+                f'{encoding} windowed, edges {"on" if edges else "off"}: {ratio:.2f} of the time '
+                f'of whole frames ({whole["median_ms"]["total"] - c["median_ms"]["total"]:.2f} ms '
+                'less at the median)'
             )
 
 

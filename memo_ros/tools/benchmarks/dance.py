@@ -383,6 +383,7 @@ def _contour_frames(
         silhouette_outlines,
     )
     from memo_ros.nodes.contour_node import pipeline_settings
+    from memo_ros.tools.launch import REPLAY_WINDOW_MARGIN
 
     cameras = scenario.cameras
     if contours == 'silhouettes':
@@ -400,9 +401,8 @@ def _contour_frames(
     options = ImagingOptions(noise=NOISE)
     rng = np.random.default_rng(options.seed)
     backgrounds = {c.name: background_image(c, options.seed) for c in cameras}
-    # every whole frame, as a replay segments them (memo-ros launch --reliable-images): the
-    # window around the previous person is a live latency measure (contour_node window_margin)
-    params = {**scenario.contour_parameters, 'window_margin': 0}
+    # segmented as a replay segments them (memo-ros launch --reliable-images): whole frames
+    params = {**scenario.contour_parameters, 'window_margin': REPLAY_WINDOW_MARGIN}
     pipelines = {c.name: ContourPipeline(pipeline_settings(params)) for c in cameras}
     for k in range(scenario.empty_frames + len(q)):
         b = k - scenario.empty_frames  # the subject's frame; negative while the studio is empty
