@@ -103,7 +103,9 @@ def test_the_cli_tells_a_track_on_the_right_sides_from_one_turned_round(recordin
     swapped = _cli('evaluate', '--keypoints', '--images', recording, '--estimate',
                    tmp_path / 'swapped', '--json')  # fmt: skip
     assert swapped.returncode == 0, swapped.stderr
-    assert json.loads(swapped.stdout)['frames_sides_disagree'] == FRAMES
+    turned = json.loads(swapped.stdout)
+    assert turned['frames_sides_disagree'] == turned['frames_turned'] == FRAMES
+    assert figures['frames_legs_swapped'] == figures['frames_arms_swapped'] == 0
     printed = _cli('evaluate', '--keypoints', '--images', recording, '--estimate',
                    tmp_path / 'right', '--plots', tmp_path / 'plots', '--per-frame',
                    tmp_path / 'frames.csv')  # fmt: skip

@@ -98,6 +98,24 @@ def test_comparison_tells_the_sides_the_heading_and_removes_offsets():
     assert np.abs(backwards.heading_error_deg) == pytest.approx(180.0)
 
 
+def test_legs_that_swapped_places_disagree_though_the_body_faces_the_right_way():
+    reference = np.stack([_standing(30.0)] * 4)
+    step = rot_z(np.radians(30.0)) @ [0.25, 0.0, 0.0]  # the left leg ahead, the right behind
+    for side, sign in (('l', 1.0), ('r', -1.0)):
+        reference[:, [JOINTS.index(f'knee_{side}'), JOINTS.index(f'ankle_{side}')]] += sign * step
+    legs = [JOINTS.index(j) for j in ('knee_l', 'ankle_l', 'knee_r', 'ankle_r')]
+    estimate = reference.copy()
+    estimate[:, legs] = reference[:, [legs[2], legs[3], legs[0], legs[1]]]
+    estimate[2:] = reference[2:]  # the last two frames right
+    result = compare(estimate, reference)
+    assert not result.turned.any()  # the body faces the right way in every frame
+    assert result.limbs_swapped.tolist() == [[False, True]] * 2 + [[False, False]] * 2
+    assert result.sides_agree.tolist() == [False, False, True, True]
+    figures = result.summary()
+    assert (figures['frames_legs_swapped'], figures['frames_arms_swapped']) == (2, 0)
+    assert figures['frames_sides_disagree'] == 2 and figures['frames_turned'] == 0
+
+
 def test_heading_is_where_the_left_of_the_body_is_on_the_left():
     assert np.degrees(heading(_standing(0.0))) == pytest.approx(0.0, abs=1e-9)
     assert np.degrees(heading(_standing(90.0))) == pytest.approx(90.0, abs=1e-9)

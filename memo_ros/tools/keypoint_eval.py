@@ -18,6 +18,7 @@ import numpy as np
 
 from memo_ros.core.evaluation.keypoints import (
     JOINTS,
+    LIMB_PAIRS,
     KeypointComparison,
     compare,
     heading,
@@ -130,6 +131,11 @@ def print_keypoint_report(report: KeypointReport) -> None:
         f'(raw MPJPE with the sides swapped: {s["mpjpe_sides_swapped_mm"]:.1f} mm)'
     )
     print(
+        f'{"left/right disagree":<28} turned round {s["frames_turned"]}, '
+        + ', '.join(f'{pair} swapped {s[f"frames_{pair}_swapped"]}' for pair in LIMB_PAIRS)
+        + ' (frames)'
+    )
+    print(
         f'{"heading error":<28} median {s["heading_error_deg_median"]:.1f} deg, '
         f'max {s["heading_error_deg_max"]:.1f} deg'
     )
@@ -151,8 +157,9 @@ def write_keypoint_per_frame(path: Path, report: KeypointReport) -> None:
     c = report.comparison
     lines = [
         'stamp_ns,mpjpe_raw_mm,mpjpe_offset_removed_mm,mpjpe_procrustes_mm,'
-        'mpjpe_swapped_mm,sides_agree,heading_error_deg,reference_reprojection_px,'
-        'reference_points_rejected'
+        'mpjpe_swapped_mm,sides_agree,turned,'
+        + ''.join(f'{pair}_swapped,' for pair in LIMB_PAIRS)
+        + 'heading_error_deg,reference_reprojection_px,reference_points_rejected'
     ]
     with warnings.catch_warnings():
         warnings.filterwarnings('ignore', 'Mean of empty slice', RuntimeWarning)
@@ -169,7 +176,9 @@ def write_keypoint_per_frame(path: Path, report: KeypointReport) -> None:
     for f, stamp in enumerate(report.stamps):
         lines.append(
             f'{int(stamp)},' + ','.join(f'{v:.2f}' for v in rows[f]) + f',{int(c.sides_agree[f])},'
-            f'{c.heading_error_deg[f]:.2f},{reprojection[f]:.2f},{int(report.rejected[f].sum())}'
+            f'{int(c.turned[f])},'
+            + ''.join(f'{int(v)},' for v in c.limbs_swapped[f])
+            + f'{c.heading_error_deg[f]:.2f},{reprojection[f]:.2f},{int(report.rejected[f].sum())}'
         )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text('\n'.join(lines) + '\n', encoding='utf-8')

@@ -13,6 +13,7 @@ and after a per-frame similarity (Procrustes) alignment.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import warnings
 
 import numpy as np
 
@@ -64,6 +65,12 @@ BLAZEPOSE = {
     'ankle_r': 28,
 }
 SWAP = [JOINTS.index(other_side(j)) for j in JOINTS]  # each joint's twin on the other side
+# each pair of limbs whose joints show one limb taken for the other (metrics.SWAP_PAIRS' joints):
+# the shoulders and hips move with the torso, so they tell the heading, not which limb is which
+LIMB_PAIRS: dict[str, tuple[list[int], list[int]]] = {
+    pair: ([JOINTS.index(f'{j}_l') for j in joints], [JOINTS.index(f'{j}_r') for j in joints])
+    for pair, joints in (('arms', ('elbow', 'wrist')), ('legs', ('knee', 'ankle')))
+}
 
 
 def model_joints(origins: np.ndarray) -> np.ndarray:
@@ -115,8 +122,14 @@ class KeypointComparison:
     offset_removed_mm: np.ndarray  # (F, J)
     procrustes_mm: np.ndarray  # (F, J)
     swapped_mm: np.ndarray  # (F,) mean raw error with the model's left and right exchanged
-    sides_agree: np.ndarray  # (F,) bool: as labelled fits better than swapped
+    turned: np.ndarray  # (F,) bool: the whole body fits better with its sides exchanged
+    limbs_swapped: np.ndarray  # (F, pairs) bool: a pair (LIMB_PAIRS) fits better exchanged
     heading_error_deg: np.ndarray  # (F,) signed, in (-180, 180]
+
+    @property
+    def sides_agree(self) -> np.ndarray:
+        """Return per frame whether the body and each pair of limbs are on the right sides."""
+        return ~self.turned & ~self.limbs_swapped.any(axis=1)
 
     def summary(self) -> dict:
         """Return the figures a user reads: means per joint and overall, side and heading counts.
@@ -140,6 +153,11 @@ class KeypointComparison:
             'mpjpe_sides_swapped_mm': float(np.nanmean(self.swapped_mm)),
             'frames_sides_agree': int(self.sides_agree.sum()),
             'frames_sides_disagree': int(frames - self.sides_agree.sum()),
+            'frames_turned': int(self.turned.sum()),
+            **{
+                f'frames_{pair}_swapped': int(self.limbs_swapped[:, k].sum())
+                for k, pair in enumerate(LIMB_PAIRS)
+            },
             'heading_error_deg_median': float(np.nanmedian(np.abs(self.heading_error_deg))),
             'heading_error_deg_max': float(np.nanmax(np.abs(self.heading_error_deg))),
             'per_joint': per_joint,
@@ -170,6 +188,25 @@ def compare(estimate: np.ndarray, reference: np.ndarray) -> KeypointComparison:
         offset_removed,
         aligned,
         swapped_mean,
-        raw_mean < swapped_mean,
+        ~(raw_mean < swapped_mean),
+        limb_swaps(estimate, reference),
         np.degrees(np.angle(np.exp(1j * turn))),
     )
+
+
+def limb_swaps(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Return per frame and pair of limbs (LIMB_PAIRS) whether it fits better exchanged (F, 2).
+
+    The mean distance of the pair's elbows and wrists (knees and ankles) to the reference's, as
+    labelled and with the estimate's left and right limb exchanged: legs that swapped places
+    while the body faces the right way fit better exchanged.  A frame missing a pair's joints
+    counts as no swap.
+    """
+    out = []
+    for left, right in LIMB_PAIRS.values():
+        own = np.linalg.norm(estimate[:, left + right] - reference[:, left + right], axis=-1)
+        other = np.linalg.norm(estimate[:, right + left] - reference[:, left + right], axis=-1)
+        with warnings.catch_warnings():
+            warnings.filterwarnings('ignore', 'Mean of empty slice', RuntimeWarning)
+            out.append(np.nanmean(other, axis=1) < np.nanmean(own, axis=1))
+    return np.stack(out, axis=-1)
