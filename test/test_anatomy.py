@@ -90,6 +90,25 @@ def test_clamp_projects_into_the_ranges_and_wraps_the_other_hinges():
     assert not ANATOMY.outside(out).any()
 
 
+def test_a_head_turned_back_is_the_same_cylinder_facing_forwards():
+    q = _bent_pose(30.0)
+    q[BODY.coordinate_index('neck_z')] = np.radians(157.0)  # no neck turns so far
+    q[BODY.coordinate_index('neck_y')] = 0.2
+    assert ANATOMY.head_turned_back(q) and ANATOMY.outside(q).any()
+    turned, _ = ANATOMY.turned_head(q)
+    rotations, origins = BODY.forward_kinematics(q)
+    rotations_t, origins_t = BODY.forward_kinematics(turned)
+    head = PART_NAMES.index('head')
+    assert np.allclose(origins_t, origins, atol=1e-9)
+    assert np.allclose(rotations_t[head], rotations[head] @ rot_z(np.pi), atol=1e-9)
+    others = [k for k in range(len(PART_NAMES)) if k != head]
+    assert np.allclose(rotations_t[others], rotations[others], atol=1e-12)
+    assert np.degrees(turned[BODY.coordinate_index('neck_z')]) == pytest.approx(-23.0, abs=3.0)
+    projected = ANATOMY.project(q)  # turned round, then within the neck's range
+    assert not ANATOMY.head_turned_back(projected) and not ANATOMY.outside(projected).any()
+    assert np.allclose(BODY.forward_kinematics(projected)[1], origins, atol=1e-9)
+
+
 def test_tangent_map_carries_rates_as_the_twin_carries_poses():
     pose = _bent_pose(30.0)
     rng = np.random.default_rng(5)

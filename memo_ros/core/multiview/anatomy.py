@@ -21,8 +21,13 @@ from memo_ros.core.geometry.body import JOINT_TREE, ROOT_COORDINATES, Body, othe
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z, rotvec_to_matrix
 
-# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend)
+# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend), and of
+# the neck's rotation vector: bent sideways up to 45 degrees, forwards or back up to 57, turned up
+# to 80 (a head turned further is the same cylinder turned by pi the other way: turned_head)
 JOINT_LIMITS: dict[str, tuple[float, float]] = {
+    'neck_x': (-0.8, 0.8),
+    'neck_y': (-1.0, 1.0),
+    'neck_z': (-1.4, 1.4),
     'elbow_l_y': (0.0, 2.6),
     'elbow_r_y': (0.0, 2.6),
     'wrist_l_y': (-1.3, 1.3),
@@ -67,6 +72,7 @@ class Anatomy:
             for axis in axes
         ]
         self.wrap_index = np.array(sorted(set(hinges) - set(self.limit_index)), int)
+        self.neck = names.index('neck_x')
         self.arms = [
             (
                 names.index(f'shoulder_{side}_x'),
@@ -134,11 +140,31 @@ class Anatomy:
         M[elbow_y, elbow_y] = -1.0
         return out, M
 
+    def head_turned_back(self, q: np.ndarray) -> bool:
+        """Return whether the head is turned by more than 90 degrees from the torso."""
+        return float(np.linalg.norm(np.asarray(q, float)[self.neck : self.neck + 3])) > np.pi / 2
+
+    def turned_head(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return the head turned by pi about its own axis, and the map of its tangent vectors.
+
+        The head is an elliptic cylinder on its own axis with no part below it, so the neck's
+        rotation times R_z(pi) puts it exactly where it was: a head that silhouettes left turned
+        the wrong way round faces forwards again, and the neck's range then holds.
+        """
+        out = np.array(q, float)
+        neck = slice(self.neck, self.neck + 3)
+        out[neck] = matrix_to_rotvec(rotvec_to_matrix(out[neck]) @ rot_z(np.pi))
+        M = np.eye(self.n)
+        M[self.neck, self.neck] = M[self.neck + 1, self.neck + 1] = -1.0  # rates turn with it
+        return out, M
+
     def project(self, q: np.ndarray) -> np.ndarray:
-        """Return ``q`` with backward-bent elbows turned round (:meth:`unreflex`), then clamped."""
+        """Return ``q`` with backward-bent elbows and a head turned back turned round, clamped."""
         out = np.array(q, float)
         for arm in self.reflexed_arms(out):
             out, _ = self.unreflex(out, arm)
+        if self.head_turned_back(out):
+            out, _ = self.turned_head(out)
         return self.clamp(out)
 
     def clamp(self, q: np.ndarray) -> np.ndarray:

@@ -435,6 +435,10 @@ class ArticulatedTracker:
             ekf.q, M = self.anatomy.unreflex(ekf.q, arm)
             ekf.v = M @ ekf.v
             ekf.P = _mapped_covariance(ekf.P, M)
+        if self.anatomy.head_turned_back(ekf.q):  # exact too: the head does not move
+            ekf.q, M = self.anatomy.turned_head(ekf.q)
+            ekf.v = M @ ekf.v
+            ekf.P = _mapped_covariance(ekf.P, M)
         ekf.q = self.anatomy.clamp(ekf.q)
 
     def _follow_twin(
