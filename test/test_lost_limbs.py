@@ -107,7 +107,7 @@ def _hand_error_after(settings: TrackerSettings, frames: int = 10) -> float:
 
 
 def test_the_silhouette_pulls_back_an_arm_no_sample_reaches():
-    off = {'recover_margin': 0.0, 'limb_exchange': 0.0, 'limb_search': 0.0}
+    off = {'recover_margin': 0.0, 'limb_exchange': 0.0, 'limb_search': 0.0, 'limb_recheck': 0}
     assert _hand_error_after(TrackerSettings(hold_sigma_px=0.0, **off)) > 0.3
     assert _hand_error_after(TrackerSettings(hold_sigma_px=2.0, hold_hull=False, **off)) < 0.05
     # the convex hull (the default region) is the weaker condition: the arm comes back later
@@ -122,6 +122,20 @@ def test_a_start_finds_an_arm_its_given_pose_has_elsewhere():
     off = {'recover_margin': 0.0, 'limb_exchange': 0.0, 'hold_sigma_px': 0.0}
     assert _hand_error_after(TrackerSettings(limb_search=0.0, **off), frames=1) > 0.3
     assert _hand_error_after(TrackerSettings(**off), frames=1) < 0.05
+
+
+def test_a_limb_lost_while_tracking_is_found_again_by_the_next_recheck():
+    """Every ``limb_recheck`` frames the limbs are searched again, each alone (limb_search.py).
+
+    The track starts with the arm elsewhere and neither the start's search, the hold nor the
+    search from a broad prior to help: only the recheck finds it.
+    """
+    off = {'recover_margin': 0.0, 'limb_exchange': 0.0, 'hold_sigma_px': 0.0, 'limb_search': 0.0}
+    assert _hand_error_after(TrackerSettings(limb_recheck=0, **off), frames=6) > 0.3
+    assert _hand_error_after(TrackerSettings(limb_recheck=5, **off), frames=5) > 0.3
+    assert _hand_error_after(TrackerSettings(limb_recheck=5, **off), frames=6) < 0.05
+    demanding = TrackerSettings(limb_recheck=5, limb_recheck_gain=1e3, **off)
+    assert _hand_error_after(demanding, frames=6) > 0.3
 
 
 def test_a_lost_limb_is_searched_again_through_a_fast_dance():

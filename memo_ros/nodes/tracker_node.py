@@ -286,6 +286,23 @@ PARAMS: tuple[Param, ...] = (
         10.0,
     ),
     Param(
+        'limb_recheck',
+        5,
+        'frames between two searches of the limbs while tracking (as at a start, each limb alone, '
+        'the rest of the body held): a limb the filter lost (an arm swung up fast) is found '
+        'again; 0 searches only at a start',
+        0,
+        1000,
+    ),
+    Param(
+        'limb_recheck_gain',
+        5.0,
+        'how much better (px^2 per contour sample, the cheap outline score) a limb found again '
+        'while tracking must fit the contours than the limb where the filter has it',
+        0.0,
+        1000.0,
+    ),
+    Param(
         'hold_sigma_px',
         2.0,
         "noise (px) of the silhouette's hold on a model outline node that projects outside a "
@@ -385,6 +402,8 @@ def tracker_settings(p: dict) -> TrackerSettings:
         limb_exchange=p['limb_exchange'],
         recover_margin=p['recover_margin'],
         limb_search=p['limb_search'],
+        limb_recheck=p['limb_recheck'],
+        limb_recheck_gain=p['limb_recheck_gain'],
         hold_sigma_px=p['hold_sigma_px'],
         hold_hull=p['hold_hull'],
         process_noise=ProcessNoise(
