@@ -13,10 +13,10 @@ and after a per-frame similarity (Procrustes) alignment.
 from __future__ import annotations
 
 from dataclasses import dataclass
-import warnings
 
 import numpy as np
 
+from memo_ros.core.evaluation.metrics import pairs_exchanged
 from memo_ros.core.geometry.body import PART_NAMES, other_side
 
 # the model's joint centres compared (part origins) and the keypoints standing for them
@@ -65,8 +65,7 @@ BLAZEPOSE = {
     'ankle_r': 28,
 }
 SWAP = [JOINTS.index(other_side(j)) for j in JOINTS]  # each joint's twin on the other side
-# each pair of limbs whose joints show one limb taken for the other (metrics.SWAP_PAIRS' joints):
-# the shoulders and hips move with the torso, so they tell the heading, not which limb is which
+# each pair of limbs whose joints show one limb taken for the other: metrics.SWAP_PAIRS' joints
 LIMB_PAIRS: dict[str, tuple[list[int], list[int]]] = {
     pair: ([JOINTS.index(f'{j}_l') for j in joints], [JOINTS.index(f'{j}_r') for j in joints])
     for pair, joints in (('arms', ('elbow', 'wrist')), ('legs', ('knee', 'ankle')))
@@ -189,24 +188,6 @@ def compare(estimate: np.ndarray, reference: np.ndarray) -> KeypointComparison:
         aligned,
         swapped_mean,
         ~(raw_mean < swapped_mean),
-        limb_swaps(estimate, reference),
+        pairs_exchanged(estimate, reference, LIMB_PAIRS),
         np.degrees(np.angle(np.exp(1j * turn))),
     )
-
-
-def limb_swaps(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Return per frame and pair of limbs (LIMB_PAIRS) whether it fits better exchanged (F, 2).
-
-    The mean distance of the pair's elbows and wrists (knees and ankles) to the reference's, as
-    labelled and with the estimate's left and right limb exchanged: legs that swapped places
-    while the body faces the right way fit better exchanged.  A frame missing a pair's joints
-    counts as no swap.
-    """
-    out = []
-    for left, right in LIMB_PAIRS.values():
-        own = np.linalg.norm(estimate[:, left + right] - reference[:, left + right], axis=-1)
-        other = np.linalg.norm(estimate[:, right + left] - reference[:, left + right], axis=-1)
-        with warnings.catch_warnings():
-            warnings.filterwarnings('ignore', 'Mean of empty slice', RuntimeWarning)
-            out.append(np.nanmean(other, axis=1) < np.nanmean(own, axis=1))
-    return np.stack(out, axis=-1)

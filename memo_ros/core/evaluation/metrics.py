@@ -12,7 +12,9 @@ the estimate's left and right arms or legs fit the truth better exchanged.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+import warnings
 
 import numpy as np
 
@@ -83,15 +85,28 @@ def side_swaps(true_origins: np.ndarray, est_origins: np.ndarray) -> np.ndarray:
     labelled and with the estimate's left and right exchanged: a 180-degree turn with the sides
     swapped, or one limb taken for the other, fits better exchanged.
     """
+    return pairs_exchanged(est_origins, true_origins, SWAP_PAIRS)
+
+
+def pairs_exchanged(
+    estimate: np.ndarray,
+    reference: np.ndarray,
+    pairs: Mapping[str, tuple[Sequence[int], Sequence[int]]],
+) -> np.ndarray:
+    """Return per frame and pair whether the pair fits ``reference`` better exchanged (..., P).
+
+    Each pair is the indices of its left points and of its right ones along the second-to-last
+    axis; its fit is the mean distance of those points, NaN points left out (a pair without
+    any counts as not exchanged).
+    """
     out = []
-    for left, right in SWAP_PAIRS.values():
-        own = np.linalg.norm(
-            est_origins[..., left + right, :] - true_origins[..., left + right, :], axis=-1
-        )
-        other = np.linalg.norm(
-            est_origins[..., right + left, :] - true_origins[..., left + right, :], axis=-1
-        )
-        out.append(other.mean(-1) < own.mean(-1))
+    for left, right in pairs.values():
+        labelled, exchanged = [*left, *right], [*right, *left]
+        own = np.linalg.norm(estimate[..., labelled, :] - reference[..., labelled, :], axis=-1)
+        other = np.linalg.norm(estimate[..., exchanged, :] - reference[..., labelled, :], axis=-1)
+        with warnings.catch_warnings():
+            warnings.filterwarnings('ignore', 'Mean of empty slice', RuntimeWarning)
+            out.append(np.nanmean(other, axis=-1) < np.nanmean(own, axis=-1))
     return np.stack(out, axis=-1)
 
 
