@@ -486,21 +486,13 @@ class Segmenter:
             or self.previous.shape != shape
         ):
             return None
-        boxes = [cv2.boundingRect(self.previous.view(np.uint8))]
+        around = self.previous
         if self.roi is not None and self.roi.shape == shape:
-            boxes.append(cv2.boundingRect(self.roi.view(np.uint8)))
-        boxes = [b for b in boxes if b[2] and b[3]]
-        if not boxes:
+            around = around | self.roi
+        if not around.any():
             return None
-        height, width = shape
-        m = s.window_margin
-        x0 = max(min(b[0] for b in boxes) - m, 0)
-        y0 = max(min(b[1] for b in boxes) - m, 0)
-        x1 = min(max(b[0] + b[2] for b in boxes) + m, width)
-        y1 = min(max(b[1] + b[3] for b in boxes) + m, height)
-        if (x1 - x0) * (y1 - y0) > WINDOW_MOST * width * height:
-            return None
-        return x0, y0, x1 - x0, y1 - y0
+        box = _grown_box(around, s.window_margin)
+        return None if box[2] * box[3] > WINDOW_MOST * shape[0] * shape[1] else box
 
     def _prior(self, shape: tuple[int, int]) -> np.ndarray | None:
         """Return the tracked region.
@@ -553,8 +545,7 @@ class Segmenter:
         if s.refine and cleaned.any():
             pixel_threshold = max(s.pixel_factor * change.sigma, PIXEL_FLOOR)
             exact = change.sigma < s.exact_noise
-            x, y, w, h = _grown_box(cleaned, 3)
-            box = np.s_[y : y + h, x : x + w]
+            box = _slices(_grown_box(cleaned, 3))
             sharp = refine_boundary(
                 raw[box], cleaned[box], change.difference[box], pixel_threshold
             )
