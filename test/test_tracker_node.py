@@ -41,6 +41,13 @@ def _studio_arm(tmp_path, frames: int, initial: dict | None = None):
     return scenario, q, path
 
 
+def _camera_contours(scenario, q) -> tuple[list[str], list[dict[str, np.ndarray]]]:
+    """Return the scenario's camera names and each pose's exact contours per camera."""
+    return [c.name for c in scenario.cameras], [
+        _silhouette_contours(scenario.cameras, p) for p in q
+    ]
+
+
 def _start_tracker(ros_env, studio_path, *params: str) -> subprocess.Popen:
     return ros_env.start_node(
         'tracker_node', '--params-file', studio_path, *[a for p in params for a in ('-p', p)]
@@ -93,7 +100,7 @@ def _cloud(table, stamp_ns: int) -> PointCloud2:
 def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path):
     scenario, q, studio = _studio_arm(tmp_path, 12)
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.05')
-    cams = [c.name for c in scenario.cameras]
+    cams, tables = _camera_contours(scenario, q)
     with ros_session('tracker_feeder', ros_env.domain_id) as (node, executor):
         pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
         assign_pub = node.create_publisher(DiagnosticArray, '/memo/camera_assignment', 10)
@@ -124,7 +131,6 @@ def test_tracker_process_tracks_survives_bad_input_and_resets(ros_env, tmp_path)
             )
         )
         spin(1.0)
-        tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(len(q))]
 
         def send(k: int, stamp: int, override: dict | None = None) -> None:
             for cam in cams:
@@ -198,8 +204,7 @@ def test_a_silent_selector_is_not_waited_for_and_tracking_keeps_the_input_rate(r
     # waiting for the selector's assignment with a long join timeout: a dead selector would cost
     # 2 s per frame if the tracker kept waiting for it
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=true', 'join_timeout:=2.0')
-    cams = [c.name for c in scenario.cameras]
-    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    cams, tables = _camera_contours(scenario, q)
     with ros_session('silent_selector_feeder', ros_env.domain_id) as (node, executor):
         pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
         processed: list[tuple[float, Header]] = []
@@ -249,8 +254,7 @@ def test_a_frame_whose_images_were_all_lost_is_still_reported(ros_env, tmp_path)
     frames = 6
     scenario, q, studio = _studio_arm(tmp_path, frames)
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.1')
-    cams = [c.name for c in scenario.cameras]
-    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    cams, tables = _camera_contours(scenario, q)
     with ros_session('announcing_feeder', ros_env.domain_id) as (node, executor):
         reliable = QoSProfile(depth=100)
         pubs = {c: node.create_publisher(PointCloud2, f'/{c}/contours', 10) for c in cams}
@@ -305,8 +309,7 @@ def test_a_start_waits_for_every_expected_camera_but_not_for_a_dead_one(ros_env,
     frames = 10
     scenario, q, studio = _studio_arm(tmp_path, frames)
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'join_timeout:=0.1')
-    cams = [c.name for c in scenario.cameras]
-    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    cams, tables = _camera_contours(scenario, q)
     with ros_session('incomplete_start_feeder', ros_env.domain_id) as (node, executor):
         pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
         reset = node.create_client(Trigger, '/tracker_node/reset')
@@ -360,8 +363,7 @@ def test_frames_that_queue_up_are_updated_with_iterations_behind_and_all_tracked
     frames = 8
     scenario, q, studio = _studio_arm(tmp_path, frames)
     process = _start_tracker(ros_env, studio, 'wait_for_assignment:=false', 'max_lag:=3600.0')
-    cams = [c.name for c in scenario.cameras]
-    tables = [_silhouette_contours(scenario.cameras, q[k]) for k in range(frames)]
+    cams, tables = _camera_contours(scenario, q)
     with ros_session('burst_feeder', ros_env.domain_id) as (node, executor):
         pubs, processed, values, spin_until = _contour_feeder(node, executor, cams, depth=100)
         spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
