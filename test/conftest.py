@@ -69,6 +69,45 @@ def wait_until_recording(recorder: subprocess.Popen, topics, timeout: float = 40
     return lines
 
 
+def play_when_matched(
+    domain_id: int,
+    bag,
+    topics: list[str],
+    outputs: list[str],
+    rate: float = 1.0,
+    remap: dict[str, str] | None = None,
+) -> int:
+    """Play ``topics`` of ``bag`` once the nodes report their side of every match.
+
+    Every publisher of what is played (published as ``remap`` says) and every subscriber of the
+    nodes' ``outputs`` that the graph shows, at least one each, as the nodes report them on
+    /diagnostics: the player's own side and a recorder's are not enough, and on a loaded machine
+    a node's side once came more than 1.5 s after them. The messages published.
+    """
+    from memo_ros.ros.dds import MatchedOnDiagnostics, ros_session
+    from memo_ros.tools.bag.play import BagPlayer, PlayOptions
+
+    with ros_session('test_player', domain_id) as (node, executor):
+        matched = MatchedOnDiagnostics(node)
+        options = PlayOptions(rate=rate, topics=topics, remap=remap or {}, wait_for_subscribers=1)
+        with BagPlayer(node, bag, options) as player:
+
+            def missing() -> list[str]:
+                wanted = {
+                    f'publishers.{t}': max(1, node.count_publishers(t)) for t in player.topics
+                }
+                wanted |= {f'subscribers.{t}': max(1, node.count_subscribers(t)) for t in outputs}
+                return player.unmatched_topics() + matched.missing(wanted)
+
+            deadline = time.monotonic() + 40.0
+            while missing():
+                assert time.monotonic() < deadline, f'not matched: {missing()}'
+                executor.spin_once(timeout_sec=0.1)
+            published = player.play()
+            assert player.flush(), 'the nodes did not acknowledge every message'
+    return published
+
+
 _serial = itertools.count()
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import subprocess
 import time
 
-from conftest import wait_until_recording
+from conftest import play_when_matched, wait_until_recording
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -57,36 +57,13 @@ def test_node_process_turns_a_played_bag_into_contours(ros_env, tmp_path):
     bag = simulate('street-walk', tmp_path / 'street', frames=12, width=320, height=240).bag
     node = _start_node(ros_env, 'cam_street', 'reliable_images:=true', 'background_frames:=6')
     out = tmp_path / 'contours'
+    inputs = ['/cam_street/image_raw', '/cam_street/camera_info']
+    outputs = ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges']
     recorder = ros_env.start(
-        'bag',
-        'record',
-        '-o',
-        out,
-        '/cam_street/contours',
-        '/cam_street/person_box',
-        '/cam_street/edges',
-        '--idle-timeout',
-        4,
-        '--duration',
-        60,
+        'bag', 'record', '-o', out, *outputs, '--idle-timeout', 4, '--duration', 60
     )
-    wait_until_recording(
-        recorder, ['/cam_street/contours', '/cam_street/person_box', '/cam_street/edges']
-    )
-    played = ros_env.run(
-        'bag',
-        'play',
-        bag,
-        '--topics',
-        '/cam_street/image_raw',
-        '/cam_street/camera_info',
-        '--wait-for-subscribers',
-        1,
-        '--rate',
-        2,
-        timeout=60,
-    )
-    assert played.returncode == 0, played.stderr
+    wait_until_recording(recorder, outputs)
+    assert play_when_matched(ros_env.domain_id, bag, inputs, outputs, rate=2) == 24
     recorder.communicate(timeout=60)
     assert node.poll() is None, 'the node must keep running'
     images = [

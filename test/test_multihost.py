@@ -17,9 +17,11 @@ import signal
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from memo_ros.core.simulation.imaging import ImagingOptions
+from memo_ros.ros.bagio import read_messages
 from memo_ros.tools.evaluate import (
     ESTIMATE_TOPICS,
     TRUTH_TOPICS,
@@ -30,6 +32,15 @@ from memo_ros.tools.simulate import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 SUBNET = '10.{}.{}'  # 10.X.Y.0/24, X.Y from the pid: concurrent runs do not collide
+
+
+def _last_diagnostics(bag: Path) -> dict[str, dict[str, str]]:
+    """Each node's last /diagnostics values recorded in ``bag``."""
+    last: dict[str, dict[str, str]] = {}
+    for m in read_messages(bag, ['/diagnostics']):
+        for status in m.message.status:
+            last.setdefault(status.name, {}).update({kv.key: kv.value for kv in status.values})
+    return last
 
 
 def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -146,6 +157,15 @@ def test_the_graph_split_over_a_camera_host_and_a_tracking_host(hosts, ros_env, 
         f'{errors.mpjpe_mm.mean():.1f} mm, '
         f'worst frame {errors.mpjpe_mm.max():.1f} mm'
     )
+    # what a failure on another machine needs to be understood: the worst frames, the replay's
+    # report, the nodes' last /diagnostics and their warnings
+    worst = np.argsort(errors.mpjpe_mm)[-5:]
+    print('worst frames:', {int(i): round(float(errors.mpjpe_mm[i]), 1) for i in sorted(worst)})
+    print(replay.stdout)
+    for name, values in _last_diagnostics(out).items():
+        print(name, values)
+    for log in logs:
+        print(''.join(line for line in log.splitlines(True) if '[WARN]' in line)[-4000:])
     assert len(errors.stamps_ns) == len(truth.origins)
     assert (
         errors.mpjpe_mm.mean() <= 25.0 and errors.mpjpe_mm.max() <= 80.0

@@ -11,7 +11,7 @@ import signal
 import subprocess
 import time
 
-from conftest import wait_until_recording
+from conftest import play_when_matched, wait_until_recording
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
@@ -363,20 +363,13 @@ def test_studio_arm_bag_the_occluded_arm_is_not_selected_from_the_camera_it_is_h
             time.sleep(0.2)
     wait_until_recording(recorder, ['/memo/camera_assignment'])
     infos = [f'/{c}/camera_info' for c in sim.cameras]
-    played = ros_env.run(
-        'bag',
-        'play',
+    play_when_matched(
+        ros_env.domain_id,
         sim.bag,
-        '--topics',
-        *infos,
-        '/memo/truth/joint_states',
-        '--remap',
-        '/memo/truth/joint_states:=/memo/joint_states',
-        '--wait-for-subscribers',
-        1,
-        timeout=60,
+        [*infos, '/memo/truth/joint_states'],
+        ['/memo/camera_assignment'],
+        remap={'/memo/truth/joint_states': '/memo/joint_states'},
     )
-    assert played.returncode == 0, played.stderr
     recorder.communicate(timeout=60)
     echoed, _ = echo.communicate(timeout=30)
     assert 'mode all_cameras' in echoed and re.search(r'^hand_r +cam_front +yes ', echoed, re.M), (

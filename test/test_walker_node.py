@@ -33,22 +33,6 @@ OUTPUTS = (
 INIT_LAST = 14  # Rohr's initialization images 2-14, counted from the first rectangle
 
 
-def _wait_for_graph(ros_env, published, subscribed, timeout=40.0):
-    """Until the walker publishes its outputs.
-
-    The recorder subscribes them and the graph takes the images.
-    """
-    with ros_session('graph_probe', ros_env.domain_id) as (node, _):
-        deadline = time.monotonic() + timeout
-        while not (
-            all(node.count_publishers(t) for t in published)
-            and all(node.count_subscribers(t) for t in subscribed)
-        ):
-            assert time.monotonic() < deadline, 'walker graph and recorder did not meet'
-            time.sleep(0.2)
-        time.sleep(1.0)
-
-
 def _first_box(bag) -> int:
     """Stamp of the first frame in which contour_node saw the person (image 1 of the walker)."""
     return min(
@@ -73,7 +57,7 @@ def street_run(tmp_path_factory):
     """One street-walk bag, 640x480 and the default noise, through the launched graph, recorded."""
     import os
 
-    from conftest import RosEnv, next_domain_id, wait_until_recording
+    from conftest import RosEnv, next_domain_id, play_when_matched, wait_until_recording
 
     tmp = tmp_path_factory.mktemp('walker')
     sim = simulate('street-walk', tmp / 'street')
@@ -98,25 +82,13 @@ def street_run(tmp_path_factory):
         )
         diagnostics = env.start('bag', 'record', '-o', diag, '/diagnostics', '--duration', 300)
         wait_until_recording(recorder, OUTPUTS, timeout=60)
-        _wait_for_graph(
-            env,
-            OUTPUTS + ('/cam_street/edges',),
-            OUTPUTS + ('/cam_street/image_raw', '/cam_street/edges'),
-        )
-        played = env.run(
-            'bag',
-            'play',
+        play_when_matched(
+            env.domain_id,
             sim.bag,
-            '--topics',
-            '/cam_street/image_raw',
-            '/cam_street/camera_info',
-            '--wait-for-subscribers',
-            1,
-            '--rate',
-            0.5,
-            timeout=120,
-        )  # slack for a busy CI host
-        assert played.returncode == 0, played.stderr
+            ['/cam_street/image_raw', '/cam_street/camera_info'],
+            [*OUTPUTS, '/cam_street/edges'],
+            rate=0.5,  # slack for a busy CI host
+        )
         recorder.communicate(timeout=240)
         time.sleep(1.5)  # one more diagnostics period after the last frame
         diagnostics.send_signal(signal.SIGINT)

@@ -135,6 +135,40 @@ def ros_session(
         context.try_shutdown()
 
 
+class MatchedOnDiagnostics:
+    """The matched endpoints the graph's nodes report on /diagnostics (``NodeHealth.matched``).
+
+    A player's or recorder's own half of a match says nothing of the node's: DDS delivers only
+    once both halves matched, so a tool waits for the node's half here before it sends.
+    """
+
+    def __init__(self, node: Node) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self._counts: dict[tuple[str, str], int] = {}  # (node, key) -> matched endpoints
+        self._lock = threading.Lock()
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 50)
+
+    def _on_diagnostics(self, msg) -> None:
+        with self._lock:
+            for status in msg.status:
+                for kv in status.values:
+                    if kv.key.startswith(('subscribers.', 'publishers.')) and kv.value.isdigit():
+                        self._counts[(status.name, kv.key)] = int(kv.value)
+
+    def missing(self, wanted: dict[str, int]) -> list[str]:
+        """Return the keys of ``wanted`` that no node reports with at least that count yet.
+
+        Keys as the nodes report them: ``publishers.<topic>``, ``subscribers.<topic>``.
+        """
+        with self._lock:
+            counts = dict(self._counts)
+        have: dict[str, int] = {}
+        for (_node, key), n in counts.items():
+            have[key] = max(have.get(key, 0), n)
+        return [key for key, n in wanted.items() if have.get(key, 0) < n]
+
+
 @contextmanager
 def stop_on_signals(on_stop: Callable[[], None] | None = None) -> Iterator[threading.Event]:
     """Return an event that SIGINT and SIGTERM set (instead of raising), so loops finish cleanly.

@@ -21,6 +21,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
 LOG_THROTTLE_S = 2.0
+# topics every rclpy node has, left out of the matched counts
+INFRASTRUCTURE_TOPICS = frozenset({'/rosout', '/parameter_events', '/diagnostics'})
 INTERNAL_ERROR = (
     'internal_error'  # the reason an unexpected exception in a callback is counted under
 )
@@ -158,8 +160,30 @@ class NodeHealth:
             values += [KeyValue(key=k, value=v) for k, v in sorted(self.values.items())]
             if self._problem:
                 values.append(KeyValue(key='last_problem', value=self._problem))
+        values += [KeyValue(key=k, value=str(n)) for k, n in self.matched().items()]
         status.values = values
         return status
+
+    def matched(self) -> dict[str, int]:
+        """Return the endpoints each of the node's topics is matched with, as DDS sees it here.
+
+        ``subscribers.<topic>`` for an output, ``publishers.<topic>`` for an input: this node's
+        own half of each match, which a recorder or player elsewhere cannot see (data sent before
+        both halves matched is lost).
+        """
+        counts = {
+            f'subscribers.{p.topic_name}': p.get_subscription_count()
+            for p in self._node.publishers
+            if p.topic_name not in INFRASTRUCTURE_TOPICS
+        }
+        counts.update(
+            {
+                f'publishers.{s.topic_name}': s.get_publisher_count()
+                for s in self._node.subscriptions
+                if s.topic_name not in INFRASTRUCTURE_TOPICS
+            }
+        )
+        return dict(sorted(counts.items()))
 
     def publish(self) -> None:
         """Send the status on /diagnostics."""

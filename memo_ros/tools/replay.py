@@ -36,6 +36,7 @@ OUTPUT_TOPICS = (
 )
 INPUT_SUFFIXES = ('/image_raw', '/camera_info')
 GRAPH_TIMEOUT_S = 60.0
+MATCH_TIMEOUT_S = 10.0  # for the nodes' side of the matches, once the player's and recorder's
 DRAIN_IDLE_S = 2.0
 
 
@@ -198,7 +199,12 @@ def replay(
     """
     from std_msgs.msg import Header
 
-    from memo_ros.ros.dds import player_segment, player_segment_bytes, ros_session
+    from memo_ros.ros.dds import (
+        MatchedOnDiagnostics,
+        player_segment,
+        player_segment_bytes,
+        ros_session,
+    )
     from memo_ros.tools.bag.play import BagPlayer, PlayOptions
     from memo_ros.tools.bag.record import BagRecorder, RecordOptions
     from memo_ros.tools.progress import Progress
@@ -234,6 +240,7 @@ def replay(
         spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
         try:
             node.create_subscription(Header, '/memo/processed', pacer.on_processed, 100)
+            matched = MatchedOnDiagnostics(node)
             recorder = BagRecorder(
                 node, out, RecordOptions(topics=[*OUTPUT_TOPICS, *(extra_topics or [])])
             )
@@ -247,6 +254,7 @@ def replay(
                 before_publish=lambda item: pacer.before_publish(item, rate == 0),
             )
             _wait_for_graph(node, recorder, player, launch)
+            _wait_for_nodes_side(node, matched, recorder, player)
             start = time.monotonic()
             total = sum(1 for _ in player._messages())
             progress = Progress(total, 'replay', sys.stderr.isatty())
@@ -323,7 +331,33 @@ def _wait_for_graph(node, recorder, player, launch) -> None:
                 f'{", ".join(player.unmatched_topics()) or "/memo/joint_states"}'
             )
         time.sleep(0.2)
-    time.sleep(2.0)  # seen from here; let the nodes' readers match the player's writers too
+
+
+def _wait_for_nodes_side(node, matched, recorder, player) -> None:
+    """Until the nodes report on /diagnostics their side of every match the replay needs.
+
+    Each node has then matched every publisher of its inputs (the player's among them) and every
+    subscriber of its outputs (the recorder's, the pacer's) that the graph shows here, so the first
+    frames are neither lost on their way in nor their results on the way out. A graph whose nodes
+    do not report it (not memo_ros nodes) is played into after MATCH_TIMEOUT_S, with a line saying
+    so.
+    """
+    wanted = {f'publishers.{t}': node.count_publishers(t) for t in player.topics}
+    wanted |= {
+        f'subscribers.{t}': node.count_subscribers(t)
+        for t in recorder.subscriptions
+        if t != '/diagnostics'
+    }
+    deadline = time.monotonic() + MATCH_TIMEOUT_S
+    while missing := matched.missing(wanted):
+        if time.monotonic() > deadline:
+            print(
+                f'replay: the nodes did not confirm, within {MATCH_TIMEOUT_S:.0f} s, their side '
+                f'of: {", ".join(missing)}; playing anyway',
+                file=sys.stderr,
+            )
+            return
+        time.sleep(0.1)
 
 
 def _drain(recorder, idle: float = DRAIN_IDLE_S, limit: float = 30.0) -> None:
