@@ -2,7 +2,9 @@
 
 Network namespaces with their own addresses on a bridge, a camera host running the contour nodes
 and the player, a tracking host running the selector and the tracker, DDS discovery by static peers
-over UDP only (no shared memory between the hosts), the same end-to-end check as on one host.
+and Fast DDS's default transports: shared memory within a host, UDP between the hosts (Fast DDS 2.x
+tells hosts apart by host name and IPv4 addresses, and the namespaces' addresses differ). The same
+end-to-end check as on one host.
 
 Needs root and network namespaces (`ip netns`); skipped, with the reason, where the machine does
 not allow them.
@@ -104,8 +106,7 @@ def test_the_graph_split_over_a_camera_host_and_a_tracking_host(hosts, ros_env, 
         ros_env,
         ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
         ROS_STATIC_PEERS=';'.join(address.values()),
-        FASTDDS_BUILTIN_TRANSPORTS='UDPv4',
-    )  # no shared memory across the hosts
+    )  # UDP between the hosts, shared memory within one (player to contour nodes), as on real ones
 
     def on(host: str, *args) -> list[str]:
         return [

@@ -260,16 +260,14 @@ def player_segment(segment_bytes: int, directory, localhost_only: bool = False) 
     interface alone, for a graph on this host).
 
     Only when the user configured no Fast DDS transports (a profiles file,
-    FASTDDS_BUILTIN_TRANSPORTS) and no static peers; yields whether it applied.  The nodes, other
+    FASTDDS_BUILTIN_TRANSPORTS); static peers (ROS_STATIC_PEERS) still apply, rmw adds them to
+    the profile's participant. Yields whether it applied.  The nodes, other
     processes, keep their defaults.
     """
     import os
     from pathlib import Path
 
-    configured = any(
-        os.environ.get(v)
-        for v in (PROFILES_VARIABLE, 'FASTDDS_BUILTIN_TRANSPORTS', 'ROS_STATIC_PEERS')
-    )
+    configured = any(os.environ.get(v) for v in (PROFILES_VARIABLE, 'FASTDDS_BUILTIN_TRANSPORTS'))
     if configured:
         yield False
         return
