@@ -20,9 +20,8 @@ def _graph(context):
     from memo_ros.core.formats.studio import load_studio, studio_path
     from memo_ros.tools.launch import (
         REPLAY_IMAGE_QUEUE,
-        REPLAY_JOIN_TIMEOUT,
-        REPLAY_MAX_LAG,
         REPLAY_ROI_WAIT,
+        REPLAY_TRACKER_PARAMS,
         REPLAY_WINDOW_MARGIN,
         RESPAWN_DELAY_S,
         ROLES,
@@ -77,9 +76,7 @@ def _graph(context):
                 package='memo_ros',
                 executable='tracker_node',
                 name='tracker_node',
-                parameters=[path, {'join_timeout': REPLAY_JOIN_TIMEOUT, 'max_lag': REPLAY_MAX_LAG}]
-                if reliable
-                else [path],
+                parameters=[path, REPLAY_TRACKER_PARAMS] if reliable else [path],
                 output='screen',
                 respawn=True,
                 respawn_delay=RESPAWN_DELAY_S,

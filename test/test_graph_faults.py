@@ -31,7 +31,7 @@ from memo_ros.tools.evaluate import (
     load_track,
     match_and_measure,
 )
-from memo_ros.tools.launch import REPLAY_JOIN_TIMEOUT, REPLAY_MAX_LAG
+from memo_ros.tools.launch import REPLAY_TRACKER_PARAMS
 from memo_ros.tools.simulate import simulate
 
 FRAMES = 450  # 15 s of studio-arm at 30 Hz (10 of them the empty studio)
@@ -91,10 +91,11 @@ class Graph:
                 'tracker_node',
                 '--params-file',
                 self.studio,
-                '-p',
-                f'join_timeout:={REPLAY_JOIN_TIMEOUT}',
-                '-p',
-                f'max_lag:={REPLAY_MAX_LAG}',
+                *[
+                    a
+                    for k, v in REPLAY_TRACKER_PARAMS.items()
+                    for a in ('-p', f'{k}:={v!s}'.lower())
+                ],
             )
         else:
             self.processes[name] = self.env.start_node(

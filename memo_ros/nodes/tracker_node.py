@@ -337,8 +337,8 @@ PARAMS: tuple[Param, ...] = (
         'camera_info or contours came), a frame that follows the last tracked one (none skipped '
         'between: the motion is one frame period) is updated with this many relinearisations '
         'instead of iterations (counted tracked_behind), about 7 ms less per relinearisation '
-        'left out on 3 cameras; a paced replay never has a newer frame waiting, so its figures '
-        'are the same either way',
+        'left out on 3 cameras; memo-ros launch --reliable-images (and so memo-ros replay) sets '
+        '20, so that a slow machine makes a replay slower, not different',
         1,
         20,
     ),
@@ -348,8 +348,8 @@ PARAMS: tuple[Param, ...] = (
         'the live latency policy for the searches (a limb exchange try, the search again for '
         'lost limbs, a look at the twin; each costs several frames of work): one due while a '
         'newer frame has been heard of (its camera_info or contours came) is put off to a frame '
-        'with none newer (counted searches_deferred); false runs each when due (a paced replay '
-        'never has a newer frame waiting, so its figures are the same either way)',
+        'with none newer (counted searches_deferred); false runs each when due (memo-ros launch '
+        '--reliable-images, and so memo-ros replay, sets false)',
     ),
 )
 SET_POSE_TTL_S = 2.0  # wall time an accepted set_pose waits for the frame that starts from it

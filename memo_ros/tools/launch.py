@@ -41,6 +41,15 @@ REPLAY_JOIN_TIMEOUT = (
     3.0  # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
 )
 # and with back-pressure the player waits anyway)
+REPLAY_TRACKER_PARAMS = {
+    'join_timeout': REPLAY_JOIN_TIMEOUT,
+    'max_lag': REPLAY_MAX_LAG,
+    # each frame tracked the same way however far behind: every iteration (iterations_behind at
+    # its top, never below iterations) and every search when due, so a slow machine makes a
+    # replay slower, not different
+    'iterations_behind': 20,
+    'defer_searches': False,
+}
 
 
 @dataclass
@@ -175,12 +184,8 @@ def graph_commands(
             log_level,
         ]
         if reliable_images:
-            tracker += [
-                '-p',
-                f'join_timeout:={REPLAY_JOIN_TIMEOUT}',
-                '-p',
-                f'max_lag:={REPLAY_MAX_LAG}',
-            ]
+            for name, value in REPLAY_TRACKER_PARAMS.items():
+                tracker += ['-p', f'{name}:={str(value).lower()}']
         nodes.append(NodeProcess('tracker_node', tracker))
     if (
         'walker_node' in studio.node_parameters
