@@ -50,6 +50,11 @@ from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fie
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 LIMB_REFINE_STARTS = 2  # a limb's best postures on the cheap score refined by the update
+# while tracking, a limb is refined only from a start that already gains this fraction of
+# limb_recheck_gain: one that gains less is the limb where the filter has it (a hanging arm is a
+# canonical posture), and refining it found the filter's own posture again at 2 updates and 2
+# scores a limb (studio-arm: 11 of 11 rechecks, none kept; the Pose2Sim arm found gained 4.8 of 5)
+LIMB_RECHECK_START_GAIN = 0.2
 LIMB_REFINE_ITERATIONS = 3
 LIMB_REFINE_SIGMA = 0.3  # rad, the prior of a refined limb posture (the limb's joints)
 LIMB_HOLD_SIGMA = 0.02  # rad or m, the prior of the rest of the body while a limb is refined
@@ -1075,8 +1080,9 @@ class ArticulatedTracker:
                 order = np.argsort(scores[1:])[:LIMB_REFINE_STARTS] + 1
                 gains.append((scores[0] - scores[order[0]], postures, poses[order]))
             kept = None
+            least = LIMB_RECHECK_START_GAIN * s.limb_recheck_gain * samples if tracking else 0.0
             for gain, postures, starts in sorted(gains, key=lambda g: -g[0]):
-                if gain <= 0:
+                if gain <= least:
                     break
                 for start in starts:
                     trial = self._refined_limb(start, postures.index, contours, rays, masks)
