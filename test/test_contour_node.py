@@ -147,6 +147,10 @@ def test_bad_images_are_counted_with_their_reason_and_the_node_keeps_running(ros
         reports.clear()
         values.clear()
         spin_until(['frames_in'])
+        # the node's side of each match: this feeder publishes its inputs, nobody takes its outputs
+        assert values['publishers./cam_bad/image_raw'] == '1', values
+        assert values['publishers./cam_bad/camera_info'] == '1', values
+        assert values['subscribers./cam_bad/contours'] == '0', values
         before = int(values['frames_in'])
         processed_before = int(values['processed'])
         dropped_before = int(values.get('dropped.total', 0))

@@ -5,7 +5,10 @@ The live graph paced by back-pressure, every frame processed and its outputs rec
 
 from __future__ import annotations
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
 from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
+from memo_ros.ros.dds import MatchedOnDiagnostics
 from memo_ros.tools.simulate import simulate
 
 
@@ -14,6 +17,7 @@ def test_replay_processes_every_frame_and_records_the_outputs(ros_env, tmp_path)
     out = tmp_path / 'tracked'
     done = ros_env.run('replay', sim.bag, '--out', out, timeout=180)
     assert done.returncode == 0, done.stdout + done.stderr
+    assert 'did not confirm' not in done.stderr  # every node reported its side of the matches
     frames = 15 + sim.empty_frames
     assert (
         f'replayed   {frames} frames' in done.stdout
@@ -41,3 +45,25 @@ def test_replay_refuses_bad_arguments_in_one_line(ros_env, tmp_path):
     assert (
         missing.returncode == 2 and missing.stderr.count('\n') == 1 and 'no bag' in missing.stderr
     )
+
+
+def test_the_nodes_side_of_each_match_is_read_from_their_diagnostics():
+    class Node:  # only what MatchedOnDiagnostics asks of its node
+        def create_subscription(self, msg_type, topic, callback, depth):
+            self.callback = callback
+
+    node = Node()
+    matched = MatchedOnDiagnostics(node)
+    wanted = {'publishers./cam/image_raw': 1, 'subscribers./memo/markers': 4}
+    assert matched.missing(wanted) == list(wanted)
+
+    def report(name: str, values: dict[str, str]) -> DiagnosticArray:
+        status = DiagnosticStatus(name=name)
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        return DiagnosticArray(status=[status])
+
+    node.callback(report('/cam/contour_node', {'publishers./cam/image_raw': '1'}))
+    node.callback(report('/tracker_node', {'subscribers./memo/markers': '3', 'frames': '9'}))
+    assert matched.missing(wanted) == ['subscribers./memo/markers']  # the recorder not yet
+    node.callback(report('/tracker_node', {'subscribers./memo/markers': '4'}))
+    assert matched.missing(wanted) == []
