@@ -288,9 +288,9 @@ PARAMS: tuple[Param, ...] = (
     Param(
         'limb_recheck',
         5,
-        'frames between two searches of the limbs while tracking (as at a start, each limb alone, '
-        'the rest of the body held): a limb the filter lost (an arm swung up fast) is found '
-        'again; 0 searches only at a start',
+        'frames between two searches of each limb while tracking (as at a start, each limb alone, '
+        'the rest of the body held; the limbs fall due on consecutive frames, one a frame): a '
+        'limb the filter lost (an arm swung up fast) is found again; 0 searches only at a start',
         0,
         1000,
     ),
