@@ -93,11 +93,9 @@ def play_when_matched(
         with BagPlayer(node, bag, options) as player:
 
             def missing() -> list[str]:
-                wanted = {
-                    f'publishers.{t}': max(1, node.count_publishers(t)) for t in player.topics
-                }
-                wanted |= {f'subscribers.{t}': max(1, node.count_subscribers(t)) for t in outputs}
-                return player.unmatched_topics() + matched.missing(wanted)
+                return player.unmatched_topics() + matched.missing_in_graph(
+                    node, player.topics, outputs
+                )
 
             deadline = time.monotonic() + 40.0
             while missing():

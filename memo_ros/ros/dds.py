@@ -156,6 +156,23 @@ class MatchedOnDiagnostics:
                     if kv.key.startswith(('subscribers.', 'publishers.')) and kv.value.isdigit():
                         self._counts[(status.name, kv.key)] = int(kv.value)
 
+    def missing_in_graph(self, node: Node, inputs, outputs) -> list[str]:
+        """Return the matches the nodes do not report yet, of those the graph shows ``node``.
+
+        Every publisher the graph has of each of ``inputs`` (a player's among them) and every
+        subscriber of each of ``outputs`` (a recorder's among them), at least one each; the
+        topics every node has (/diagnostics, ...) are not reported and left out.
+        """
+        from memo_ros.ros.health import INFRASTRUCTURE_TOPICS
+
+        wanted = {f'publishers.{t}': max(1, node.count_publishers(t)) for t in inputs}
+        wanted |= {
+            f'subscribers.{t}': max(1, node.count_subscribers(t))
+            for t in outputs
+            if t not in INFRASTRUCTURE_TOPICS
+        }
+        return self.missing(wanted)
+
     def missing(self, wanted: dict[str, int]) -> list[str]:
         """Return the keys of ``wanted`` that no node reports with at least that count yet.
 

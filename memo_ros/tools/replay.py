@@ -342,14 +342,9 @@ def _wait_for_nodes_side(node, matched, recorder, player) -> None:
     do not report it (not memo_ros nodes) is played into after MATCH_TIMEOUT_S, with a line saying
     so.
     """
-    wanted = {f'publishers.{t}': node.count_publishers(t) for t in player.topics}
-    wanted |= {
-        f'subscribers.{t}': node.count_subscribers(t)
-        for t in recorder.subscriptions
-        if t != '/diagnostics'
-    }
     deadline = time.monotonic() + MATCH_TIMEOUT_S
-    while missing := matched.missing(wanted):
+    # (a copy: the spin thread subscribes the recorder to topics as they appear)
+    while missing := matched.missing_in_graph(node, player.topics, list(recorder.subscriptions)):
         if time.monotonic() > deadline:
             print(
                 f'replay: the nodes did not confirm, within {MATCH_TIMEOUT_S:.0f} s, their side '
