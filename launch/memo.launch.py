@@ -19,10 +19,8 @@ from launch import LaunchDescription
 def _graph(context):
     from memo_ros.core.formats.studio import load_studio, studio_path
     from memo_ros.tools.launch import (
-        REPLAY_IMAGE_QUEUE,
-        REPLAY_ROI_WAIT,
+        REPLAY_CONTOUR_PARAMS,
         REPLAY_TRACKER_PARAMS,
-        REPLAY_WINDOW_MARGIN,
         RESPAWN_DELAY_S,
         ROLES,
     )
@@ -39,17 +37,7 @@ def _graph(context):
             executable='contour_node',
             name='contour_node',
             namespace=camera,
-            parameters=[
-                path,
-                {
-                    'reliable_images': True,
-                    'image_queue_depth': REPLAY_IMAGE_QUEUE,
-                    'roi_wait': REPLAY_ROI_WAIT,
-                    'window_margin': REPLAY_WINDOW_MARGIN,
-                }
-                if reliable
-                else {},
-            ],
+            parameters=[path, REPLAY_CONTOUR_PARAMS if reliable else {}],
             output='screen',
             respawn=True,  # supervised like `memo-ros launch`: a node that dies comes back
             respawn_delay=RESPAWN_DELAY_S,

@@ -31,7 +31,7 @@ from memo_ros.tools.evaluate import (
     load_track,
     match_and_measure,
 )
-from memo_ros.tools.launch import REPLAY_TRACKER_PARAMS
+from memo_ros.tools.launch import REPLAY_TRACKER_PARAMS, parameter_arguments
 from memo_ros.tools.simulate import simulate
 
 FRAMES = 450  # 15 s of studio-arm at 30 Hz (10 of them the empty studio)
@@ -91,11 +91,7 @@ class Graph:
                 'tracker_node',
                 '--params-file',
                 self.studio,
-                *[
-                    a
-                    for k, v in REPLAY_TRACKER_PARAMS.items()
-                    for a in ('-p', f'{k}:={v!s}'.lower())
-                ],
+                *parameter_arguments(REPLAY_TRACKER_PARAMS),
             )
         else:
             self.processes[name] = self.env.start_node(

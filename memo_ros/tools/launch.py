@@ -41,6 +41,14 @@ REPLAY_JOIN_TIMEOUT = (
     3.0  # s the tracker waits for a frame's contours in a replay (a loaded host is slow,
 )
 # and with back-pressure the player waits anyway)
+# replay: reliable images, and a burst of images re-sent to a late-matching reader must not
+# overflow its queue
+REPLAY_CONTOUR_PARAMS = {
+    'reliable_images': True,
+    'image_queue_depth': REPLAY_IMAGE_QUEUE,
+    'roi_wait': REPLAY_ROI_WAIT,
+    'window_margin': REPLAY_WINDOW_MARGIN,
+}
 REPLAY_TRACKER_PARAMS = {
     'join_timeout': REPLAY_JOIN_TIMEOUT,
     'max_lag': REPLAY_MAX_LAG,
@@ -112,6 +120,11 @@ def run(args: argparse.Namespace) -> int:
     return Launcher(nodes, args.max_restarts, args.restart_window).run()
 
 
+def parameter_arguments(params: dict[str, bool | int | float]) -> list[str]:
+    """Return ``-p name:=value`` node arguments for ``params`` (booleans as ROS spells them)."""
+    return [a for name, value in params.items() for a in ('-p', f'{name}:={str(value).lower()}')]
+
+
 def graph_commands(
     studio: Studio,
     path: Path,
@@ -142,18 +155,7 @@ def graph_commands(
             log_level,
         ]
         if reliable_images:
-            # replay: a burst of images re-sent to a late-matching reader must not overflow its
-            # queue
-            command += [
-                '-p',
-                'reliable_images:=true',
-                '-p',
-                f'image_queue_depth:={REPLAY_IMAGE_QUEUE}',
-                '-p',
-                f'roi_wait:={REPLAY_ROI_WAIT}',
-                '-p',
-                f'window_margin:={REPLAY_WINDOW_MARGIN}',
-            ]
+            command += parameter_arguments(REPLAY_CONTOUR_PARAMS)
         nodes.append(NodeProcess(f'{cam}/contour_node', command))
     if role == 'cameras':
         return nodes
@@ -184,8 +186,7 @@ def graph_commands(
             log_level,
         ]
         if reliable_images:
-            for name, value in REPLAY_TRACKER_PARAMS.items():
-                tracker += ['-p', f'{name}:={str(value).lower()}']
+            tracker += parameter_arguments(REPLAY_TRACKER_PARAMS)
         nodes.append(NodeProcess('tracker_node', tracker))
     if (
         'walker_node' in studio.node_parameters
