@@ -1084,6 +1084,8 @@ class ArticulatedTracker:
         field_list = [fields.get(c) for c in names]
         # (while tracking, each limb's outline is weighed on the cheap score instead)
         cost = 0.0 if tracking else self._fit_cost(q, contours, rays, masks, samples)
+        # the least gain a start must show on the cheap score to be refined
+        least = LIMB_RECHECK_START_GAIN * s.limb_recheck_gain * samples if tracking else 0.0
         searched = list(self.limb_postures if limbs is None else limbs)
         left = list(searched)
         while left:
@@ -1096,7 +1098,6 @@ class ArticulatedTracker:
                 order = np.argsort(scores[1:])[:LIMB_REFINE_STARTS] + 1
                 gains.append((scores[0] - scores[order[0]], postures, poses[order]))
             kept = None
-            least = LIMB_RECHECK_START_GAIN * s.limb_recheck_gain * samples if tracking else 0.0
             for gain, postures, starts in sorted(gains, key=lambda g: -g[0]):
                 if gain <= least:
                     break
