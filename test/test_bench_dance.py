@@ -132,7 +132,7 @@ def test_a_dancer_of_other_proportions_is_tracked_with_the_measured_average_body
     (run,) = report['runs']
     assert report['body'] == str(path) and report['tracker_body'] == 'measured'
     assert run['body_height_m'] == pytest.approx(narrow.standing_height())
-    assert run['measured_height_m'] == pytest.approx(narrow.standing_height(), abs=0.05)
+    assert run['measured_height_m'] == pytest.approx(narrow.standing_height(), abs=0.01)
     assert run['untracked'] == 0 and run['mpjpe_mm_mean'] < 60.0, run
     given = run_dance_benchmark(
         [30.0], ['ring4'], frames=4, size=(320, 240), contours='silhouettes', body_file=str(path)

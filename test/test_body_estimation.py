@@ -9,6 +9,7 @@ from memo_ros.core.geometry.render import render_labels
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
+    hull_overshoot,
     measure_height,
     scaled_body,
     silhouette_from_contours,
@@ -58,9 +59,24 @@ def test_height_measured_from_four_silhouettes(height):
         q[3:6] = matrix_to_rotvec(rot_z(heading))
         frames.append((cameras, silhouettes(truth, q, cameras)))
     body, measured = estimate_body(frames, load_default_body())
-    # the hull's top is the head's top rounded up to a 2 cm voxel, plus a pixel of tolerance
-    assert measured == pytest.approx(height, abs=0.035)
+    # the top in 5 mm voxels, less the overshoot of a standing template's own hull
+    assert measured == pytest.approx(height, abs=0.006)
     assert body.standing_height() == pytest.approx(measured, abs=1e-9)
+
+
+def test_the_hull_alone_overshoots_and_the_template_takes_it_off():
+    """Four head outlines' cones meet above the head: a 2 % taller body turned dances round."""
+    cameras = rig()
+    truth = scaled_body(load_default_body(), 1.75)
+    q = truth.neutral()
+    q[0:2] = (-0.2, 0.1)
+    frames = [(cameras, silhouettes(truth, q, cameras))]
+    raw, hulls = measure_height(frames)
+    assert raw > 1.75 + 0.005
+    overshoot = hull_overshoot(truth, frames[0], hulls[0])
+    assert overshoot == pytest.approx(raw - 1.75, abs=0.003)
+    corrected, _ = measure_height(frames, template=load_default_body())
+    assert corrected == pytest.approx(1.75, abs=0.006)
 
 
 def test_height_takes_the_upright_frames_not_a_crouch():
@@ -73,9 +89,9 @@ def test_height_takes_the_upright_frames_not_a_crouch():
         crouch[truth.coordinate_index(f'hip_{side}_y')] = 1.0
     crouch[2] -= 0.25
     frames = [(cameras, silhouettes(truth, q, cameras)) for q in (upright, crouch, upright)]
-    height, hulls = measure_height(frames)
+    height, hulls = measure_height(frames, template=load_default_body())
     assert min(h.top for h in hulls) < 1.6  # the crouch is lower
-    assert height == pytest.approx(1.75, abs=0.035)
+    assert height == pytest.approx(1.75, abs=0.006)
 
 
 def test_no_silhouettes_no_body():

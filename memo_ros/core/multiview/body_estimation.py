@@ -8,7 +8,13 @@ in that posture; over the first frames, the median of the taller half (the
 frames where he stands upright; one frame's segmentation error does not
 decide) scales the shipped average adult's proportions
 (config/body_average_adult.yaml, Winter's segment lengths as fractions of the
-standing height).  The girth is scaled with the height: four silhouettes do
+standing height).  Few cameras carve a hull taller than the person: the cones of
+the head's outlines meet above the head (4 cm on a 1.75 m person in the
+orthogonal studio, and a body 2 % too tall turned a third of the simulated
+dances round at the start).  So the template, scaled to the measured height and
+standing where the hull stands, is imaged into the same cameras and carved the
+same way, and the height is lowered by how far its hull overshoots it.  The
+girth is scaled with the height: four silhouettes do
 not measure a cross-section well enough to tell a slim subject from an
 average one (the hull of an ellipse seen from four directions overestimates
 it, arms beside the trunk are inside it).
@@ -24,6 +30,7 @@ from scipy import ndimage
 
 from memo_ros.core.geometry.body import Body, PartShape
 from memo_ros.core.geometry.camera import Camera
+from memo_ros.core.geometry.render import render_labels
 
 
 @dataclass
@@ -103,13 +110,15 @@ def visual_hull(
     voxel: float = 0.02,
     tolerance_px: int = 1,
     coarse: float = 0.06,
+    fine: float = 0.005,
 ) -> HullMeasure | None:
     """Return the person's visual hull around ``centre`` (x, y).
 
     Or None when nothing survives the carving.
 
     Carved first with ``coarse`` voxels over the whole search box, then with ``voxel``-sized ones
-    in the box of the coarse hull's largest piece (grown by two coarse voxels).
+    in the box of the coarse hull's largest piece (grown by two coarse voxels), and its top once
+    more with ``fine`` ones.
     """
     low = np.array([centre[0] - half_width, centre[1] - half_width, z_range[0]])
     high = np.array([centre[0] + half_width, centre[1] + half_width, z_range[1]])
@@ -122,9 +131,20 @@ def visual_hull(
     points = _carve(cameras, masks, low, high, voxel, tolerance_px)
     if points is None:
         return None
-    return HullMeasure(
-        points, float(points[:, 2].min() - voxel / 2), float(points[:, 2].max() + voxel / 2)
-    )
+    top = float(points[:, 2].max() + voxel / 2)
+    if fine < voxel:  # the top again in fine voxels: a height is worth more than a 2 cm step
+        crown = points[points[:, 2] > top - 2 * voxel]
+        cap = _carve(
+            cameras,
+            masks,
+            np.append(crown[:, :2].min(axis=0) - voxel, top - 2 * voxel),
+            np.append(crown[:, :2].max(axis=0) + voxel, top + voxel),
+            fine,
+            tolerance_px,
+        )
+        if cap is not None:
+            top = float(cap[:, 2].max() + fine / 2)
+    return HullMeasure(points, float(points[:, 2].min() - voxel / 2), top)
 
 
 def _carve(
@@ -166,7 +186,10 @@ def _carve(
 
 
 def measure_height(
-    frames: list[Silhouettes], voxel: float = 0.02, ground: float = 0.0
+    frames: list[Silhouettes],
+    voxel: float = 0.02,
+    ground: float = 0.0,
+    template: Body | None = None,
 ) -> tuple[float, list[HullMeasure]]:
     """Return the subject's standing height from several frames' silhouettes.
 
@@ -175,22 +198,60 @@ def measure_height(
     A frame's height is the hull's top over the ground (z = ``ground``, the world's floor; the hull
     of the feet reaches below it along the cameras' rays); the subject's is the median of the
     frames' heights above their median, i.e. of the frames where he stands tallest (crouching does
-    not pull it down).
+    not pull it down).  With a ``template``, less the hull's overshoot over a standing body of
+    the template's proportions in those frames (:func:`hull_overshoot`).
     """
-    hulls = []
+    measured = []
     for cameras, masks in frames:
         centre = ray_meeting_point(cameras, masks)
         if centre is None:
             continue
         hull = visual_hull(cameras, masks, centre, voxel=voxel)
         if hull is not None and len(hull.points) > 10:
-            hulls.append(hull)
-    if not hulls:
+            measured.append(((cameras, masks), hull))
+    if not measured:
         raise ValueError(
             'no frame gives a visual hull: the body needs silhouettes from at least two cameras'
         )
-    heights = np.sort([h.top - max(h.bottom, ground) for h in hulls])
-    return float(np.median(heights[len(heights) // 2 :])), hulls
+    hulls = [hull for _, hull in measured]
+    heights = np.array([h.top - max(h.bottom, ground) for h in hulls])
+    upright = np.argsort(heights, kind='stable')[len(heights) // 2 :]
+    height = float(np.median(heights[upright]))
+    if template is None:
+        return height, hulls
+    body = scaled_body(template, height)
+    overshoots = [
+        hull_overshoot(body, measured[k][0], measured[k][1], voxel, ground) for k in upright
+    ]
+    return height - float(np.median(overshoots)), hulls
+
+
+def hull_overshoot(
+    body: Body, frame: Silhouettes, hull: HullMeasure, voxel: float = 0.02, ground: float = 0.0
+) -> float:
+    """Return how far the visual hull of ``body`` rises above its standing height, m.
+
+    The body stands (rest pose) on the ground where ``hull`` stands, imaged into ``frame``'s
+    cameras at its masks' resolution and carved as the person was.
+    """
+    cameras, masks = frame
+    q = body.neutral()
+    q[0:2] = np.median(hull.points[:, :2], axis=0)
+    q[2] += ground
+    rotations, origins = body.forward_kinematics(q)
+    images = []
+    for camera, mask in zip(cameras, masks):
+        h, w = mask.shape
+        view = (
+            camera if (camera.width, camera.height) == (w, h) else camera.scaled(w / camera.width)
+        )
+        labels = render_labels(view, rotations, origins, body.semi_axes, body.lengths).label
+        images.append(labels > 0)
+    centre = ray_meeting_point(cameras, images)
+    own = visual_hull(cameras, images, centre, voxel=voxel) if centre is not None else None
+    if own is None:
+        return 0.0
+    return own.top - max(own.bottom, ground) - body.standing_height()
 
 
 def scaled_body(template: Body, height: float, name: str | None = None) -> Body:
@@ -216,7 +277,9 @@ def estimate_body(
 ) -> tuple[Body, float]:
     """Return the template scaled to the height measured from the frames' silhouettes.
 
+    The hull's overshoot over a body of the template's proportions taken off (measure_height).
+
     And that height, m.
     """
-    height, _ = measure_height(frames, voxel, ground)
+    height, _ = measure_height(frames, voxel, ground, template)
     return scaled_body(template, height), height
