@@ -79,6 +79,21 @@ def test_the_hull_alone_overshoots_and_the_template_takes_it_off():
     assert corrected == pytest.approx(1.75, abs=0.006)
 
 
+@pytest.mark.parametrize('raised', [('shoulder_l_y',), ('shoulder_l_y', 'shoulder_r_y')])
+def test_a_hand_raised_overhead_is_not_taken_for_the_head(raised):
+    cameras = rig()
+    truth = scaled_body(load_default_body(), 1.68)
+    q = truth.neutral()
+    q[0:2] = (0.1, 0.2)
+    for coordinate in raised:
+        q[truth.coordinate_index(coordinate)] = 3.0  # an arm up beside the head
+    frames = [(cameras, silhouettes(truth, q, cameras))]
+    _, hulls = measure_height(frames)
+    assert hulls[0].points[:, 2].max() > 1.68 + 0.25  # the hull reaches the raised hand
+    height, _ = measure_height(frames, template=load_default_body())
+    assert height == pytest.approx(1.68, abs=0.006)
+
+
 def test_height_takes_the_upright_frames_not_a_crouch():
     cameras = rig()
     truth = scaled_body(load_default_body(), 1.75)
