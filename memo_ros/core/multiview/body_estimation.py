@@ -3,8 +3,9 @@
 The silhouettes of one frame carve a visual hull out of a voxel grid around
 the point where the rays through their centroids meet: a voxel is kept when
 every camera that sees it (at least two) sees it inside the person, and the
-largest connected piece is the person.  Its top over the ground is his height
-in that posture; over the first frames, the median of the taller half (the
+largest connected piece is the person.  The top of its column over the chest
+(a hand raised overhead stands beside it) over the ground is his height in
+that posture; over the first frames, the median of the taller half (the
 frames where he stands upright; one frame's segmentation error does not
 decide) scales the shipped average adult's proportions
 (config/body_average_adult.yaml, Winter's segment lengths as fractions of the
@@ -41,11 +42,11 @@ class HullMeasure:
 
     points: np.ndarray
     bottom: float  # lowest occupied voxel's lower face, m (world z)
-    top: float  # highest occupied voxel's upper face, m
+    top: float  # the head's top: the highest voxel's upper face in the column over the chest, m
 
     @property
     def height(self) -> float:
-        """Return the hull's height over its lowest point, m."""
+        """Return the head's top over the hull's lowest point, m."""
         return self.top - self.bottom
 
 
@@ -151,6 +152,12 @@ def visual_hull(
     return HullMeasure(points, bottom, top)
 
 
+def _view_at(camera: Camera, shape: tuple[int, ...]) -> Camera:
+    """Return ``camera`` at the resolution of a mask of ``shape`` (rows, columns)."""
+    h, w = shape[:2]
+    return camera if (camera.width, camera.height) == (w, h) else camera.scaled(w / camera.width)
+
+
 def _head_column(points: np.ndarray, bottom: float, voxel: float) -> np.ndarray:
     """Return which hull voxels (N,) stand in the column over the chest, where the head is.
 
@@ -196,10 +203,7 @@ def _carve(
     kernel = np.ones((2 * tolerance_px + 1, 2 * tolerance_px + 1), np.uint8)
     for camera, mask in zip(cameras, masks):
         h, w = mask.shape
-        view = (
-            camera if (camera.width, camera.height) == (w, h) else camera.scaled(w / camera.width)
-        )
-        uv = np.round(view.project(grid))
+        uv = np.round(_view_at(camera, mask.shape).project(grid))
         ok = np.all(np.isfinite(uv), axis=1)
         u = np.where(ok, uv[:, 0], -1).astype(int)
         v = np.where(ok, uv[:, 1], -1).astype(int)
@@ -271,10 +275,7 @@ def hull_overshoot(
     rotations, origins = body.forward_kinematics(q)
     images = []
     for camera, mask in zip(cameras, masks):
-        h, w = mask.shape
-        view = (
-            camera if (camera.width, camera.height) == (w, h) else camera.scaled(w / camera.width)
-        )
+        view = _view_at(camera, mask.shape)
         labels = render_labels(view, rotations, origins, body.semi_axes, body.lengths).label
         images.append(labels > 0)
     centre = ray_meeting_point(cameras, images)
