@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body, other_side
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor, other_side
 from memo_ros.core.geometry.render import render
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
 from memo_ros.core.multiview.anatomy import JOINT_LIMITS, Anatomy, facing
@@ -16,7 +16,7 @@ from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, Track
 from memo_ros.core.simulation.scenarios import studio_cameras
 from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 ANATOMY = Anatomy(BODY)
 SWAPPED = [PART_NAMES.index(other_side(p)) for p in PART_NAMES]
 

@@ -121,7 +121,7 @@ def test_a_dancer_of_other_proportions_is_tracked_with_the_measured_average_body
     small = scaled_body(average, 1.60, 'small_160')
     offsets = {joint: offset.copy() for joint, offset in small.joint_offsets.items()}
     for side, sign in (('l', 1.0), ('r', -1.0)):
-        offsets[f'shoulder_{side}'][1] = sign * 0.16  # narrower than the scaled 0.192
+        offsets[f'shoulder_{side}'][1] = sign * 0.16  # narrower than the scaled 0.174
     narrow = Body(small.shapes, offsets, 'narrow_160')
     path = tmp_path / 'narrow.yaml'
     path.write_text(yaml.safe_dump({'body': narrow.to_dict()}), encoding='utf-8')

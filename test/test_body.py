@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import JOINT_NAMES, PART_NAMES, Body, load_default_body
+from memo_ros.core.geometry.body import (
+    JOINT_NAMES,
+    PART_NAMES,
+    Body,
+    load_default_body,
+    load_studio_actor,
+)
 from memo_ros.core.geometry.rotations import rotvec_to_matrix
 from memo_ros.core.geometry.surface import body_surface, normal_variation
 
@@ -26,6 +32,25 @@ def test_names_follow_the_design(body):
     for name in body.coordinate_names[6:]:
         joint, axis = name.rsplit('_', 1)
         assert joint in JOINT_NAMES and axis in 'xyz'
+
+
+def test_the_template_has_anatomical_shoulders_and_the_studio_actor_broad_ones(body):
+    """A real person is measured with the template: its shoulder joints near anatomy's 350 mm.
+
+    The simulated studios' actor is the same adult with its hanging arms clear of the chest.
+    """
+
+    def shoulder_width(b: Body) -> float:
+        _, origins = b.forward_kinematics(b.neutral())
+        left, right = (origins[PART_NAMES.index(p)] for p in ('upper_arm_l', 'upper_arm_r'))
+        return float(np.linalg.norm(left - right))
+
+    actor = load_studio_actor()
+    assert shoulder_width(body) == pytest.approx(0.38, abs=0.005)
+    assert shoulder_width(actor) == pytest.approx(0.42, abs=0.005)
+    assert actor.shapes == body.shapes
+    same = [j for j in JOINT_NAMES if not j.startswith('shoulder')]
+    assert all(np.allclose(actor.joint_offsets[j], body.joint_offsets[j]) for j in same)
 
 
 def test_neutral_pose_stands_on_the_ground_at_the_shipped_height(body):

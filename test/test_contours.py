@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.simulation.imaging import ImagingOptions
 from memo_ros.core.simulation.scenarios import make_scenario
@@ -211,7 +211,7 @@ def studio_frames(tmp_path_factory):
     options = ImagingOptions()
     bag = tmp_path_factory.mktemp('arm') / 'bag'
     result = simulate('studio-arm', bag, frames=3, width=WIDTH, height=HEIGHT, options=options)
-    body = load_default_body()
+    body = load_studio_actor()
     scenario = make_scenario('studio-arm', body, WIDTH, HEIGHT, 3)
     q, _ = scenario.coordinates(np.arange(3) / scenario.frame_rate)
     poses = [body.forward_kinematics(qk) for qk in q]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.formats.studio import Studio
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body, lowest_point
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor, lowest_point
 from memo_ros.core.multiview.anatomy import facing, pose_problem
 from memo_ros.core.simulation.scenarios import (
     RIGS,
@@ -20,7 +20,7 @@ from memo_ros.core.simulation.scenarios import (
 )
 from memo_ros.tools.simulate import simulate
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 DT = 1.0 / 30.0
 
 

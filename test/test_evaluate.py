@@ -18,7 +18,7 @@ from memo_ros.core.evaluation.metrics import (
     side_swaps,
 )
 from memo_ros.core.formats.studio import Studio
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body, other_side
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor, other_side
 from memo_ros.core.geometry.rotations import matrix_to_quat, rot_x, rot_z
 from memo_ros.core.multiview.anatomy import facing
 from memo_ros.core.simulation.imaging import ImagingOptions
@@ -242,7 +242,7 @@ def test_heading_error_and_side_swaps_are_found_in_the_frames_they_happen(tmp_pa
 
 
 def test_the_heading_of_part_poses_is_anatomy_facing():
-    body = load_default_body()
+    body = load_studio_actor()
     rng = np.random.default_rng(5)
     q = body.neutral() + rng.normal(0.0, 1.0, (20, body.n_coordinates))
     rotations, _ = body.forward_kinematics(q)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.evaluation.silhouette_score import lost_after_start, silhouette_iou
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.rotations import matrix_to_quat
 from memo_ros.ros.bagio import BagWriter, header, pose_array_msg
 from memo_ros.tools.evaluate import TRUTH_TOPICS, load_track
@@ -139,7 +139,7 @@ def test_markers_give_back_the_body_the_tracker_used(tmp_path):
         tracked_body_from_markers,
     )
 
-    body = load_default_body()
+    body = load_studio_actor()
     q = body.neutral()
     q[0] = 0.3
     rotations, origins = body.forward_kinematics(q)

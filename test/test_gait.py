@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.walking.gait import ANGLES, GaitCurves, WalkingModel
 
 
@@ -49,7 +49,7 @@ def test_rohr_ten_instants_option():
 
 
 def test_walking_model_left_lags_right_by_half_a_cycle_and_feet_touch_ground():
-    body = load_default_body()
+    body = load_studio_actor()
     walker = WalkingModel(body)
     pose = np.linspace(0, 1, 50, endpoint=False)
     q = walker.coordinates(pose, x=1.0, y=2.0, heading=0.3)
@@ -68,7 +68,7 @@ def test_walking_model_left_lags_right_by_half_a_cycle_and_feet_touch_ground():
 
 
 def test_heel_strike_posture_at_pose_zero():
-    body = load_default_body()
+    body = load_studio_actor()
     q = WalkingModel(body).coordinates(0.0)
     rotations, origins = body.forward_kinematics(q)
     ends = body.distal_ends(rotations, origins)

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.multiview.silhouette_hold import SilhouetteField, outside_pull
 from memo_ros.core.multiview.tracking import ArticulatedTracker, TrackerSettings
 from memo_ros.core.simulation.scenarios import studio_cameras
 from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 
 
 def _square_field() -> SilhouetteField:

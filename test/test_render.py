@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render, render_body
 from memo_ros.core.geometry.rotations import rot_x
@@ -63,7 +63,7 @@ def test_occlusion_of_a_coaxial_cylinder_leaves_an_annulus():
 
 
 def test_reduced_resolution_scales_areas_with_the_square_of_the_scale():
-    body = load_default_body()
+    body = load_studio_actor()
     cam = _camera(eye=(3.5, 0, 1.0), target=(0, 0, 1.0))
     full = render_body(cam, body, body.neutral())
     quarter = render_body(cam, body, body.neutral(), scale=0.25)
@@ -73,7 +73,7 @@ def test_reduced_resolution_scales_areas_with_the_square_of_the_scale():
 
 
 def test_arm_behind_the_torso_is_hidden_from_the_side():
-    body = load_default_body()
+    body = load_studio_actor()
     side = _camera(eye=(0, 4.0, 1.0), target=(0, 0, 1.0))  # left side
     r = render_body(side, body, body.neutral())
     visible = r.visible_area(14)
@@ -85,7 +85,7 @@ def test_arm_behind_the_torso_is_hidden_from_the_side():
 
 
 def test_normals_face_the_camera_and_parts_subset():
-    body = load_default_body()
+    body = load_studio_actor()
     cam = _camera(eye=(4.0, 0.5, 1.2), target=(0, 0, 1.0))
     r = render_body(cam, body, body.neutral(), normals=True)
     hit = r.label > 0

@@ -19,7 +19,7 @@ from test_tracker_node import _cloud, _studio_arm
 from test_tracking_core import _silhouette_contours
 
 from memo_ros.core.formats.studio import Studio, studio_path
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.render import render, render_labels
 from memo_ros.core.multiview.anatomy import JOINT_LIMITS, pose_problem, studio_volume
 from memo_ros.core.multiview.motion import named_values_problem
@@ -30,7 +30,7 @@ from memo_ros.ros.body_messages import stamp_from_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.health import NodeHealth
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 NAMES = list(BODY.coordinate_names)
 NS = 1_000_000_000
 T0 = 1_800_000_000 * NS

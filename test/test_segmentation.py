@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.simulation.imaging import ImagingOptions
 from memo_ros.core.simulation.scenarios import STUDIO_EMPTY_FRAMES, make_scenario
@@ -144,7 +144,7 @@ def _scenario_frames(tmp_path_factory, name: str, frames: int, noise: float) -> 
     options = ImagingOptions(noise=noise)
     bag = tmp_path_factory.mktemp(f'{name}_{noise}') / 'bag'
     result = simulate(name, bag, frames=frames, width=WIDTH, height=HEIGHT, options=options)
-    body = load_default_body()
+    body = load_studio_actor()
     scenario = make_scenario(name, body, WIDTH, HEIGHT, frames)
     q, _ = scenario.coordinates(np.arange(frames) / scenario.frame_rate)
     poses = [body.forward_kinematics(qk) for qk in q]

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render, render_labels
 from memo_ros.core.multiview.selection import (
@@ -22,7 +22,7 @@ from memo_ros.core.multiview.selection import (
 )
 from memo_ros.core.simulation.scenarios import make_scenario, studio_cameras
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 CAMERAS = studio_cameras()
 NAMES = [c.name for c in CAMERAS]
 

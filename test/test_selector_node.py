@@ -21,7 +21,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 
 from memo_ros.core.formats.studio import Studio, studio_path
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.multiview.motion import coordinates_from_names
 from memo_ros.core.multiview.selection import CameraSelector, visibility_index
@@ -56,7 +56,7 @@ def _stop(process: subprocess.Popen) -> str:
 
 
 def test_assignment_message_round_trips_and_prints_as_a_table():
-    selector = CameraSelector(load_default_body(), studio_cameras())
+    selector = CameraSelector(load_studio_actor(), studio_cameras())
     q = selector.body.neutral()
     moved = q.copy()
     moved[0] += 0.03

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.formats.studio import Studio
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.geometry.rotations import quat_to_matrix
 from memo_ros.core.simulation.imaging import (
@@ -81,7 +81,7 @@ def simulated(request, tmp_path_factory):
 
 def test_topics_types_and_counts(simulated):
     name, result, by_topic = simulated
-    cameras = make_scenario(name, load_default_body()).cameras
+    cameras = make_scenario(name, load_studio_actor()).cameras
     assert result.cameras == [c.name for c in cameras] and result.frames == FRAMES
     expected = {
         TRUTH_JOINTS: 'sensor_msgs/msg/JointState',
@@ -154,7 +154,7 @@ def test_camera_info_matches_the_studio_file(simulated):
 
 def test_truth_poses_are_the_forward_kinematics_of_the_truth_joints(simulated):
     name, _, by_topic = simulated
-    body = load_default_body()
+    body = load_studio_actor()
     expected_names = list(body.coordinate_names) + (['gait_phase'] if name in WALKING else [])
     for joints, poses in zip(by_topic[TRUTH_JOINTS], by_topic[TRUTH_POSES]):
         assert list(joints.message.name) == expected_names
@@ -223,7 +223,7 @@ def test_the_person_is_in_the_image_exactly_where_the_body_renders(tmp_path):
     result = simulate(
         'studio-arm', tmp_path / 'bag', frames=3, width=WIDTH, height=HEIGHT, options=NOISE_FREE
     )
-    body = load_default_body()
+    body = load_studio_actor()
     scenario = make_scenario('studio-arm', body, WIDTH, HEIGHT, 3)
     joints = [m.message for m in read_messages(result.bag, [TRUTH_JOINTS])]
     rng = np.random.default_rng(0)

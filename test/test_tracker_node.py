@@ -18,7 +18,7 @@ from std_srvs.srv import Trigger
 from test_tracking_core import _silhouette_contours
 
 from memo_ros.core.formats.studio import Studio
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.multiview.selection import Assignment
 from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.ros.assignment_messages import assignment_to_message
@@ -26,7 +26,7 @@ from memo_ros.ros.body_messages import PROCESSED_TOPIC, stamp_from_ns
 from memo_ros.ros.dds import ros_session
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 T0 = 1_800_000_000 * 10**9
 DT = 33_333_333
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import PART_NAMES, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.geometry.rotations import rotvec_to_matrix
 from memo_ros.core.multiview.correspondence import (
@@ -49,7 +49,7 @@ from memo_ros.core.multiview.tracking import (
 from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
 
-BODY = load_default_body()
+BODY = load_studio_actor()
 
 
 def _silhouette_contours(cameras, q):

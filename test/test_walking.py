@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from memo_ros.core.evaluation.metrics import phase_error
-from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, Body, load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.simulation.imaging import (
     ImagingOptions,
@@ -44,7 +44,7 @@ from memo_ros.nodes.contour_node import pipeline_settings
 
 @pytest.fixture(scope='module')
 def body():
-    return load_default_body()
+    return load_studio_actor()
 
 
 @pytest.fixture(scope='module')

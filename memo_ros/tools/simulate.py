@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from memo_ros.core.formats.studio import Studio
-from memo_ros.core.geometry.body import Body, load_default_body
+from memo_ros.core.geometry.body import Body, load_studio_actor
 from memo_ros.core.geometry.rotations import matrix_to_quat
 from memo_ros.core.simulation.imaging import (
     ImagingOptions,
@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scenario == 'studio-dance' and heading_deg is None:
         heading_deg = float(np.random.default_rng(args.seed).uniform(0.0, 360.0))
         chosen = f'random from --seed {args.seed}'
-    body = Body.from_yaml(args.body) if args.body else load_default_body()
+    body = Body.from_yaml(args.body) if args.body else load_studio_actor()
     out = args.out or Path('out') / args.scenario
     result = simulate(
         args.scenario,
@@ -244,7 +244,7 @@ def simulate(
     scenario's number of empty-scene frames before the subject appears; ``heading``
     (rad) and ``rig`` go to :func:`make_scenario` (studio-dance's start, a studio's cameras).
     """
-    body = body or load_default_body()
+    body = body or load_studio_actor()
     options = options or ImagingOptions()
     scenario = make_scenario(
         scenario_name, body, width, height, frames, frame_rate, heading=heading, rig=rig

@@ -284,6 +284,9 @@ def _joint_kinds(
     ]
 
 
+SHOULDER_OUTSET = 0.6  # upper arm's axis outside the torso's side, in its half widths
+
+
 def default_joint_offsets(shapes: dict[str, PartShape]) -> dict[str, np.ndarray]:
     """Joint centres in their parent's frame, derived from the part shapes.
 
@@ -292,7 +295,7 @@ def default_joint_offsets(shapes: dict[str, PartShape]) -> dict[str, np.ndarray]
     the end of its parent's axis.
     """
     torso, upper_arm, thigh = shapes['torso'], shapes['upper_arm_l'], shapes['thigh_l']
-    shoulder_y = torso.b + upper_arm.b
+    shoulder_y = torso.b + 0.6 * upper_arm.b
     shoulder_z = torso.length - 0.6 * upper_arm.a
     hip_y = torso.b - thigh.b
     offsets = {
@@ -350,3 +353,13 @@ def load_default_body() -> Body:
     from memo_ros.paths import config_path
 
     return Body.from_yaml(config_path('body_average_adult.yaml'))
+
+
+def load_studio_actor() -> Body:
+    """Return the simulated studios' person (config/body_studio_actor.yaml).
+
+    The average adult with broad shoulders (420 mm): what the simulator renders by default.
+    """
+    from memo_ros.paths import config_path
+
+    return Body.from_yaml(config_path('body_studio_actor.yaml'))

@@ -34,7 +34,7 @@ from memo_ros.core.evaluation.metrics import (
     pose_errors,
     side_swaps,
 )
-from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body
+from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body, load_studio_actor
 from memo_ros.core.geometry.render import render
 from memo_ros.core.multiview.body_estimation import estimate_body, frame_silhouettes
 from memo_ros.core.simulation.scenarios import RIGS, Scenario, dance_moves, make_scenario
@@ -46,7 +46,7 @@ STARTS = ('given', 'silhouettes')  # the true first pose, or automatic initialis
 # the tracker's body: the dancer's own, or the shipped average scaled to the height measured from
 # the first frame's silhouettes (tracker_node's body_source: silhouettes, as for a real person)
 TRACKER_BODIES = ('truth', 'measured')
-DEFAULT_BODY = 'config/body_average_adult.yaml'  # the dancer without --body, as reported
+DEFAULT_BODY = 'config/body_studio_actor.yaml'  # the dancer without --body, as reported
 NOISE = 3.0  # grey levels, simulate's default
 # issue 16's Done-when for studio-dance
 MPJPE_MEAN_MM = 30.0
@@ -86,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         '--body',
         help="dance: the dancer's body, a body YAML (config/body_average_adult.yaml's format; "
-        'default: that shipped average adult)',
+        "default: the simulated studios' actor, config/body_studio_actor.yaml)",
     )
     parser.add_argument(
         '--tracker-body',
@@ -310,7 +310,7 @@ def track_dance(
     """
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
-    body = body or load_default_body()
+    body = body or load_studio_actor()
     scenario = make_scenario(
         'studio-dance', body, *size, frames, heading=np.radians(heading_deg), rig=rig
     )

@@ -55,11 +55,11 @@ def benchmark_poses(body) -> dict[str, np.ndarray]:
 
 def renderer_times(repeat: int) -> list[dict]:
     """Median and p90 render time (ms) per camera for each pose, resolution and normals setting."""
-    from memo_ros.core.geometry.body import load_default_body
+    from memo_ros.core.geometry.body import load_studio_actor
     from memo_ros.core.geometry.render import render
     from memo_ros.core.simulation.scenarios import studio_cameras
 
-    body = load_default_body()
+    body = load_studio_actor()
     cameras = studio_cameras(*SIM_SIZE)
     rows = []
     for pose_name, q in benchmark_poses(body).items():

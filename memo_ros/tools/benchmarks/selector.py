@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.multiview.motion import ConstantVelocity
 from memo_ros.core.multiview.selection import CameraSelector, SelectionSettings
 from memo_ros.core.simulation.scenarios import make_scenario
@@ -32,7 +32,7 @@ def _time_sequence(scenario_name: str, settings: SelectionSettings, repeat: int)
     """
     from memo_ros.ros.assignment_messages import assignment_to_message
 
-    body = load_default_body()
+    body = load_studio_actor()
     scenario = make_scenario(scenario_name, body, *SIZE)
     times = np.arange(scenario.frames) / scenario.frame_rate
     q, _ = scenario.coordinates(times)

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render
 from memo_ros.core.multiview.tracking import ArticulatedTracker, TrackerSettings
@@ -129,7 +129,7 @@ def run_tracker_benchmark(
     ``densities``: points per camera from the studio's 3 cameras; ``cameras``: camera counts
     on the ring, 1,000 points each.
     """
-    body = load_default_body()
+    body = load_studio_actor()
     scenario = make_scenario('studio-arm', body, frames=frames)
     times = np.arange(frames) / scenario.frame_rate
     q, _ = scenario.coordinates(times)
