@@ -211,8 +211,8 @@ PARAMS: tuple[Param, ...] = (
         'studio',
         "the body's dimensions: the studio file's, or the studio body's proportions "
         "scaled to the subject's height measured from the visual hull of the first frames' "
-        'silhouettes (real '
-        'recordings)',
+        'silhouettes (real recordings; memo-ros import writes the shipped average adult, its '
+        'shoulder joints 380 mm apart)',
         choices=('studio', 'silhouettes'),
         read_only=True,
     ),
