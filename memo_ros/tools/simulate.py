@@ -130,7 +130,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '--encoding', default='mono8', help=f'image encoding: {", ".join(ENCODINGS)}'
     )
     parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
-    parser.add_argument('--body', type=Path, help='body YAML (default: the shipped average adult)')
+    parser.add_argument(
+        '--body',
+        type=Path,
+        help="body YAML (default: the simulated studios' actor, config/body_studio_actor.yaml)",
+    )
     parser.add_argument(
         '--heading',
         type=finite,

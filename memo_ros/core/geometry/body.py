@@ -290,12 +290,14 @@ SHOULDER_OUTSET = 0.6  # upper arm's axis outside the torso's side, in its half 
 def default_joint_offsets(shapes: dict[str, PartShape]) -> dict[str, np.ndarray]:
     """Joint centres in their parent's frame, derived from the part shapes.
 
-    Shoulders sit beside the torso's upper end (arm touching the chest), hips
-    inside the pelvis (thigh flush with the torso's side), every distal joint at
-    the end of its parent's axis.
+    Shoulders at the torso's upper end, the upper arm's axis SHOULDER_OUTSET of its
+    half width outside the torso's side: 380 mm apart at 1.75 m, near anatomy's 350
+    (a whole half width, the arm hanging clear of the chest, puts them 420 mm apart,
+    wider than a man's shoulders). Hips inside the pelvis (thigh flush with the
+    torso's side), every distal joint at the end of its parent's axis.
     """
     torso, upper_arm, thigh = shapes['torso'], shapes['upper_arm_l'], shapes['thigh_l']
-    shoulder_y = torso.b + 0.6 * upper_arm.b
+    shoulder_y = torso.b + SHOULDER_OUTSET * upper_arm.b
     shoulder_z = torso.length - 0.6 * upper_arm.a
     hip_y = torso.b - thigh.b
     offsets = {
