@@ -7,12 +7,12 @@ start's left and right must agree with the learned-keypoint reference in both fr
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from test_keypoints_eval import NEEDS_DETECTOR
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import load_default_body
@@ -31,10 +31,7 @@ T0 = 1_800_000_000 * 10**9
 DT = 33_333_333
 
 pytestmark = [
-    pytest.mark.skipif(
-        importlib.util.find_spec('mediapipe') is None,
-        reason='the keypoint detector is not installed (pip install memo_ros[keypoints])',
-    ),
+    NEEDS_DETECTOR,
     pytest.mark.skipif(
         not (DATA / 'CALIB' / 'Camera1.cal').is_file(), reason='bodytrack data not available'
     ),

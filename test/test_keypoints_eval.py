@@ -21,11 +21,12 @@ ROOT = Path(__file__).resolve().parent.parent
 DEMO = ROOT.parent / 'shared' / 'data' / 'pose2sim_demo_single'
 FRAMES = 3
 
+NEEDS_DETECTOR = pytest.mark.skipif(
+    importlib.util.find_spec('mediapipe') is None,
+    reason='the keypoint detector is not installed (pip install memo_ros[keypoints])',
+)
 pytestmark = [
-    pytest.mark.skipif(
-        importlib.util.find_spec('mediapipe') is None,
-        reason='the keypoint detector is not installed (pip install memo_ros[keypoints])',
-    ),
+    NEEDS_DETECTOR,
     pytest.mark.skipif(
         not (DEMO / 'Calib.qca.txt').is_file(), reason='Pose2Sim demo data not available'
     ),
