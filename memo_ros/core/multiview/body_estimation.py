@@ -44,10 +44,12 @@ class HullMeasure:
     bottom: float  # lowest occupied voxel's lower face, m (world z)
     top: float  # the head's top: the highest voxel's upper face in the column over the chest, m
 
-    @property
-    def height(self) -> float:
-        """Return the head's top over the hull's lowest point, m."""
-        return self.top - self.bottom
+    def height_over(self, ground: float) -> float:
+        """Return the head's top over the floor at z = ``ground``, m.
+
+        The hull of the feet reaches below the floor along the cameras' rays: it is not counted.
+        """
+        return self.top - max(self.bottom, ground)
 
 
 Silhouettes = tuple[
@@ -248,7 +250,7 @@ def measure_height(
             'no frame gives a visual hull: the body needs silhouettes from at least two cameras'
         )
     hulls = [hull for _, hull in measured]
-    heights = np.array([h.top - max(h.bottom, ground) for h in hulls])
+    heights = np.array([h.height_over(ground) for h in hulls])
     upright = np.argsort(heights, kind='stable')[len(heights) // 2 :]
     height = float(np.median(heights[upright]))
     if template is None:
@@ -282,7 +284,7 @@ def hull_overshoot(
     own = visual_hull(cameras, images, centre, voxel=voxel) if centre is not None else None
     if own is None:
         return 0.0
-    return own.top - max(own.bottom, ground) - body.standing_height()
+    return own.height_over(ground) - body.standing_height()
 
 
 def scaled_body(template: Body, height: float, name: str | None = None) -> Body:
