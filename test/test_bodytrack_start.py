@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from test_keypoints_eval import NEEDS_DETECTOR
 
+from memo_ros.core.formats.calibration import _pose_from_extrinsics
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import load_default_body
 from memo_ros.core.geometry.camera import Camera
@@ -42,9 +43,9 @@ def _bouguet_camera(path: Path, name: str) -> Camera:
     """Read a Caltech/Bouguet .cal (fc, cc, alpha_c, kc, Rc_ext, Tc_ext in mm, omc_ext)."""
     v = np.loadtxt(path)
     fc, cc, alpha, kc = v[0:2], v[2:4], v[4], v[5:10]
-    R, t = v[10:19].reshape(3, 3), v[19:22] / 1000.0  # X_cam = R X_world + t
     K = np.array([[fc[0], alpha * fc[0], cc[0]], [0.0, fc[1], cc[1]], [0.0, 0.0, 1.0]])
-    return Camera(name, 640, 480, K, kc, 'plumb_bob', R.T, -R.T @ t)
+    pose = _pose_from_extrinsics(v[10:19], v[19:22] / 1000.0)  # X_cam = R X_world + t
+    return Camera(name, 640, 480, K, kc, 'plumb_bob', *pose)
 
 
 def _grey(path: Path) -> np.ndarray:
