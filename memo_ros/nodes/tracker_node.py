@@ -327,8 +327,7 @@ PARAMS: tuple[Param, ...] = (
         'reported skipped on /memo/processed) and the filter predicts through it; 0 tracks only '
         'the newest, a large value every frame (memo-ros launch --reliable-images, and so '
         'memo-ros replay, set 3600 s); below 1 s a tracker behind its cameras stays less late '
-        'but skips more (at 60 Hz on 2 cores, 0.1 s: 0.3 s late instead of 1.1 s, and the track '
-        'lost in 1 of 7 runs; docs/nodes.md)',
+        'but skips more and may lose the track (measured in docs/nodes.md, latency policy)',
         0.0,
         3600.0,
     ),
