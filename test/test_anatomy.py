@@ -310,3 +310,56 @@ def test_the_hips_twist_ties_a_standing_dancers_heading_to_the_legs():
     tied = worst[TrackerSettings().hip_twist_sigma]
     assert worst[0.0] > 2.0 * tied, worst  # the drift this guards against
     assert tied < 10.0, worst
+
+
+def _walk_turned_round(settings: TrackerSettings) -> list[float]:
+    """Heading error (deg) per frame of studio-walk, the track turned round after frame 3."""
+    from memo_ros.core.simulation.scenarios import make_scenario
+    from memo_ros.tools.benchmarks.dance import _contour_frames
+
+    scenario = make_scenario('studio-walk', BODY, 320, 240, 40)
+    times = np.arange(scenario.frames) / scenario.frame_rate
+    truth, _ = scenario.coordinates(times)
+    tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=truth[0])
+    errors = []
+    for k, tables in enumerate(_contour_frames(scenario, BODY, truth, 'silhouettes')):
+        tracker.step(int(round(times[k] * 1e9)), tables)
+        if k == 3:  # decided the wrong way round: the leader replaced by its twin
+            tracker.ekf = tracker._twin_filter(tracker.ekf, tracker.ekf.q)
+            tracker.twin_ekf, tracker.since_twin = None, 0
+            tracker.evidence = tracker.settings.twin_evidence
+        turn = facing(BODY, tracker.ekf.q) - facing(BODY, truth[k])
+        errors.append(abs(np.degrees(np.angle(np.exp(1j * turn)))))
+    return errors
+
+
+def test_a_track_walking_backwards_is_turned_round_by_the_direction_of_travel():
+    """studio-walk (1.1 m/s), the track decided the wrong way round, no look at the twin due.
+
+    Walking backwards asks for a look and weighs for the twin; without the cue the track walks
+    backwards to the end (twin_recheck 0: no periodic look, which would find it at frame 33).
+    """
+    without = _walk_turned_round(TrackerSettings(twin_recheck=0, travel_evidence=0.0))
+    assert min(without[4:]) > 150.0, np.round(without)
+    errors = _walk_turned_round(TrackerSettings(twin_recheck=0))
+    assert min(errors[4:10]) > 150.0 and max(errors[-10:]) < 20.0, np.round(errors)
+
+
+def test_travel_supports_the_heading_it_goes_and_says_nothing_on_the_spot():
+    from memo_ros.core.multiview.travel import PelvisPath, travel_support
+
+    q = BODY.neutral()
+    q[3:6] = matrix_to_rotvec(rot_z(np.radians(30.0)))
+    ahead = np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0))])
+    assert travel_support(1.2 * ahead, q, 0.5) == pytest.approx(1.0)
+    assert travel_support(-1.2 * ahead, q, 0.5) == pytest.approx(-1.0)
+    assert travel_support(0.75 * ahead, q, 0.5) == pytest.approx(0.5)  # halfway to full weight
+    assert travel_support(0.4 * ahead, q, 0.5) == 0.0  # slower than a walk
+    assert travel_support(1.2 * ahead[::-1] * [1, -1], q, 0.5) == pytest.approx(0.0, abs=1e-9)
+    path = PelvisPath()
+    for k in range(10):  # 0.3 s: too short to say
+        path.add(k / 30, np.r_[0.04 * k, 0.0, 0.0])
+    assert path.velocity() is None
+    for k in range(10, 30):
+        path.add(k / 30, np.r_[0.04 * k, 0.0, 0.0])
+    assert path.velocity() == pytest.approx([1.2, 0.0])

@@ -257,6 +257,23 @@ PARAMS: tuple[Param, ...] = (
         100000,
     ),
     Param(
+        'travel_evidence',
+        0.5,
+        'twin evidence per frame (sigma^2 per sample) for the pose walking forwards, at twice '
+        'travel_speed or faster; a decided pose walking backwards gets a look at its twin '
+        '(0: the direction of travel is not used)',
+        0.0,
+        10.0,
+    ),
+    Param(
+        'travel_speed',
+        0.5,
+        'm/s of the pelvis over 0.5 s at or below which the direction of travel says nothing '
+        '(standing, dancing on the spot, a step aside)',
+        0.05,
+        5.0,
+    ),
+    Param(
         'limb_exchange',
         0.5,
         'rad a pair of limbs (legs, arms) changes its left-right difference by before it is tried '
@@ -400,6 +417,8 @@ def tracker_settings(p: dict) -> TrackerSettings:
         hard_limits=p['hard_limits'],
         twin_evidence=p['twin_evidence'],
         twin_recheck=p['twin_recheck'],
+        travel_evidence=p['travel_evidence'],
+        travel_speed=p['travel_speed'],
         limb_exchange=p['limb_exchange'],
         recover_margin=p['recover_margin'],
         limb_search=p['limb_search'],

@@ -47,6 +47,7 @@ from memo_ros.core.multiview.motion import (
     coordinate_rates,
 )
 from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fields
+from memo_ros.core.multiview.travel import PelvisPath, travel_support
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 LIMB_REFINE_STARTS = 2  # a limb's best postures on the cheap score refined by the update
@@ -59,6 +60,8 @@ LIMB_REFINE_ITERATIONS = 3
 LIMB_REFINE_SIGMA = 0.3  # rad, the prior of a refined limb posture (the limb's joints)
 LIMB_HOLD_SIGMA = 0.02  # rad or m, the prior of the rest of the body while a limb is refined
 TWIN_CHECK_FRAMES = 3  # frames a decided leader is checked against its twin
+TRAVEL_LOOK_SUPPORT = 0.5  # a decided leader walking backwards this clearly gets a look
+TRAVEL_LOOK_FRAMES = 10  # frames after the last look before walking backwards asks again
 REFERENCE_SPACING_PX = (
     2.0  # the sample spacing the noise parameters refer to (contour_node's contour_step)
 )
@@ -118,6 +121,10 @@ class TrackerSettings:
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
+    # evidence per frame (sigma^2 per sample) for the pose walking forwards at twice
+    # travel_speed or faster; a pose walking backwards gets a look at its twin (0: off)
+    travel_evidence: float = 0.5
+    travel_speed: float = 0.5  # m/s of the pelvis (over travel.TRAVEL_WINDOW_S) that says nothing
     limb_exchange: float = 0.5  # rad a pair's left-right difference moves before a try exchanged
     exchange_margin: float = 0.05  # sigma^2 per sample the exchanged limbs must fit better by
     recover_margin: float = 0.3  # misfit (sigma^2 / sample) over the usual that starts a search
@@ -228,6 +235,7 @@ class ArticulatedTracker:
         self.twin_age = 0
         self.since_twin = 0  # frames since the twin was last followed
         self.look_wanted = False  # a look at the twin is due since an inconsistent frame
+        self.path = PelvisPath()  # the leader's pelvis: the direction of travel (travel.py)
         # frames since each limb was last searched (_recheck_limbs), staggered: one limb a frame
         self.since_limbs = -np.arange(len(self.limb_postures))
         # each pair of limbs' left-right difference when it was last tried exchanged
@@ -340,6 +348,7 @@ class ArticulatedTracker:
             )  # fmt: skip
         if self.settings.limb_recheck > 0 and not initialised:
             self._recheck_limbs(contours, rays, masks)
+        self.path.add(stamp_ns * 1e-9, self.ekf.q)
         if self.settings.twin_evidence > 0:
             self._follow_twin(
                 contours, rays, masks, samples, dt, initialised and not from_pose, free
@@ -465,15 +474,23 @@ class ArticulatedTracker:
         The twin starts at every initialisation from the silhouettes, every
         ``twin_recheck`` frames and at an inconsistent frame, each time refitted to the frame
         from a broad prior as a start's candidates are.  The evidence is
-        the difference of the two poses' robust contour costs per sample, with
-        memory; past ``twin_evidence`` the better pose is kept (the twin taking
-        the leader's place if it is the better), or after ``twin_max_frames``.
+        the difference of the two poses' robust contour costs per sample, plus
+        ``travel_evidence`` times how clearly the leader walks forwards (travel.py),
+        with memory; past ``twin_evidence`` the better pose is kept (the twin taking
+        the leader's place if it is the better), or after ``twin_max_frames``.  A
+        decided leader that walks backwards gets a look at its twin.
         """
         s = self.settings
         self.since_twin += 1
+        velocity = self.path.velocity() if s.travel_evidence > 0 else None
+        walking = travel_support(velocity, self.ekf.q, s.travel_speed)
         if self.twin_ekf is None:
             due = s.twin_recheck > 0 and self.since_twin >= s.twin_recheck
             self.look_wanted |= self.bad_frames == 1  # a run of bad frames: one look
+            # a track walking backwards at walking pace: one look, again after TRAVEL_LOOK_FRAMES
+            self.look_wanted |= (
+                walking < -TRAVEL_LOOK_SUPPORT and self.since_twin >= TRAVEL_LOOK_FRAMES
+            )
             if not (start_twin or due or self.look_wanted):
                 return
             if not start_twin and not self._search_allowed():
@@ -511,7 +528,11 @@ class ArticulatedTracker:
         lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
         twin_cost = self._fit_cost(twin.q, contours, rays, masks, samples)
         self._last_counts = counts
-        self.evidence = s.twin_memory * self.evidence + (twin_cost - lead_cost) / max(samples, 1)
+        self.evidence = (
+            s.twin_memory * self.evidence
+            + (twin_cost - lead_cost) / max(samples, 1)  # the fit to the contours
+            + s.travel_evidence * walking  # the direction of travel (the twin's is the opposite)
+        )
         self.twin_age += 1
         if self.evidence < -s.twin_evidence or (
             self.twin_age >= s.twin_max_frames and self.evidence < 0
