@@ -6,7 +6,9 @@
 # camera's background is learnt with the body the first pass tracked masked out: the dancer stands in one
 # place most of the time, and a plain median learns him into the background), and evaluate without ground
 # truth: silhouette IoU per camera, frames lost, overlays. Extra arguments go to `memo-ros import`
-# (e.g. --frames 0:40). Environment: POSE2SIM_DEMO (data folder), OUT (output folder), SCALE (0.25).
+# (e.g. --frames 0:40, or --calibration FILE when the folder holds several). Environment:
+# POSE2SIM_DEMO (the recording's folder: its videos and calibration, flat or in a Pose2Sim
+# project's videos/ and calibration/; default the demo), OUT (output folder), SCALE (0.25).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -53,8 +55,8 @@ XML
   export FASTRTPS_DEFAULT_PROFILES_FILE="$(realpath "$OUT/fastdds_large_images.xml")"
 fi
 
-.venv/bin/memo-ros import videos "$DATA"/cam0{1,2,3,4}.mp4 --calibration "$DATA/Calib.qca.txt" \
-    --out "$BAG" --scale "$SCALE" --encoding bgr8 "$@"
+# the folder's videos and its one calibration (flat, or a Pose2Sim project's videos/ and calibration/)
+.venv/bin/memo-ros import videos "$DATA" --out "$BAG" --scale "$SCALE" --encoding bgr8 "$@"
 
 # node parameters for a real recording, written into the imported studio file
 .venv/bin/python - "$BAG.yaml" "$(realpath "$BAG")" "$SCALE" <<'PY'

@@ -29,6 +29,7 @@ from memo_ros.tools.import_videos import (
     import_videos,
     parse_frames,
     parse_offsets,
+    recording_folder,
     scaled_camera,
 )
 from memo_ros.tools.simulate import START_NS, simulate
@@ -303,6 +304,46 @@ def test_option_parsing():
         parse_offsets(['cam01:0.5'])
 
 
+def test_a_recording_folder_flat_or_as_a_pose2sim_project(simulated, tmp_path):
+    """``import videos FOLDER``: its videos in natural order and its one calibration."""
+    bag, studio = simulated
+    exported = export_videos(bag, tmp_path / 'v', fmt='toml', codec='png')
+    project = tmp_path / 'project'
+    (project / 'videos').mkdir(parents=True)
+    (project / 'calibration').mkdir()
+    for video in exported.videos.values():
+        shutil.copy(video, project / 'videos' / video.name)
+    shutil.copy(exported.calibration[0], project / 'calibration' / 'Calib_scene.toml')
+    done = cli('import', 'videos', project, '--out', tmp_path / 'p', '--frames', '0:2')
+    assert done.returncode == 0, done.stderr
+    assert Studio.load(tmp_path / 'p.yaml').camera_names == studio.camera_names
+    assert images(tmp_path / 'p') == {
+        topic: frames[:2] for topic, frames in images(bag).items() if 'image' in topic
+    }
+    flat = tmp_path / 'flat'
+    flat.mkdir()
+    for path in (*exported.videos.values(), exported.calibration[0]):
+        shutil.copy(path, flat / path.name.replace('calibration', 'Calib'))
+    assert recording_folder(flat) == (
+        sorted((flat / v.name for v in exported.videos.values()), key=lambda p: p.name),
+        flat / 'Calib.toml',
+    )
+    (flat / 'Calib_other.toml').write_text('')
+    cases = [
+        ([flat], '2 calibrations (Calib*.toml or *.qca.txt'),
+        ([tmp_path / 'project' / 'calibration'], '0 videos'),
+    ]
+    for args, message in cases:
+        done = cli('import', 'videos', *args, '--out', tmp_path / 'out')
+        assert done.returncode == 2, (message, done.stderr)
+        assert message in done.stderr and 'Traceback' not in done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    done = cli('import', 'videos', flat, '-c', flat / 'Calib.toml', '--out', tmp_path / 'chosen')
+    assert done.returncode == 0, done.stderr
+    done = cli('import', 'videos', *exported.videos.values(), '--out', tmp_path / 'out')
+    assert done.returncode == 2 and '--calibration is needed' in done.stderr, done.stderr
+
+
 def test_bad_inputs_are_one_line_errors(simulated, tmp_path):
     bag, studio = simulated
     exported = export_videos(bag, tmp_path / 'v', fmt='qualisys')
@@ -353,6 +394,11 @@ def test_pose2sim_demo_imports(tmp_path):
         '0:5',
     )
     assert done.returncode == 0, done.stderr
+    folder = cli(
+        'import', 'videos', DEMO, '--out', tmp_path / 'f', '--scale', '0.25', '--frames', '0:1'
+    )
+    assert folder.returncode == 0 and 'Calib.qca.txt' not in folder.stderr, folder.stderr
+    assert Studio.load(tmp_path / 'f.yaml').camera_names == ['cam01', 'cam02', 'cam03', 'cam04']
     # cam01 and cam02 are encoded 1080 wide, cam03 and cam04 1088 like the calibration's fov_video
     assert done.stderr.count('cropped at the right') == 2
     studio = Studio.load(tmp_path / 'p2s.yaml')

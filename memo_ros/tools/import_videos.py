@@ -1,7 +1,9 @@
 """Import recorded videos and their calibration into a rosbag2, with a studio YAML beside it.
 
 ``memo-ros import videos CAM1.mp4 CAM2.mp4 ... --calibration FILE --out BAG``
-decodes the videos with OpenCV, one frame per camera in memory at a time, and
+(or ``memo-ros import videos FOLDER --out BAG``: a recording folder's videos and
+its one calibration, flat or in a Pose2Sim project's ``videos/`` and
+``calibration/``) decodes the videos with OpenCV, one frame per camera in memory at a time, and
 writes ``/<cam>/image_raw`` and ``/<cam>/camera_info`` per camera, stamped
 ``first + (k / fps + offset)`` for frame k, in time order; ``BAG.yaml`` is the
 studio (every camera's intrinsics and pose, the body, the frame rate), as
@@ -29,6 +31,7 @@ from memo_ros.core.formats.calibration import (
     Calibration,
     CalibrationError,
     load_calibration,
+    natural_key,
     ros_name,
 )
 from memo_ros.core.formats.studio import Studio
@@ -45,14 +48,21 @@ CROP_TOLERANCE = 16  # px: one H.264 macroblock; codecs pad or crop frames to a 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare this command's arguments and options."""
     parser.add_argument('kind', choices=('videos',), help='what to import: videos')
-    parser.add_argument('videos', nargs='+', type=Path, help='one video per camera')
+    parser.add_argument(
+        'videos',
+        nargs='+',
+        type=Path,
+        help='one video per camera, or a recording folder: its videos (*.mp4, *.avi, *.mov, '
+        '*.mkv) and, without --calibration, its one Calib*.toml or *.qca.txt, each flat or in '
+        "a Pose2Sim project's videos/ and calibration/",
+    )
     parser.add_argument(
         '--calibration',
         '-c',
         type=Path,
-        required=True,
         help='Qualisys .qca.txt, calibration.toml, EasyMocap folder (intri.yml + extri.yml), '
-        'ROS calibration folder (<cam>.yaml + poses.yaml) or a memo_ros studio YAML',
+        'ROS calibration folder (<cam>.yaml + poses.yaml) or a memo_ros studio YAML '
+        '(required with video files; found in a recording folder)',
     )
     parser.add_argument('--calibration-format', choices=READ_FORMATS, help='skip format detection')
     parser.add_argument(
@@ -144,10 +154,15 @@ def run(args: argparse.Namespace) -> int:
     """Run the command with parsed ``args``; return its exit code."""
     from memo_ros.tools.cli import CliError
 
+    videos, calibration = args.videos, args.calibration
     try:
+        if len(videos) == 1 and videos[0].is_dir():
+            videos, calibration = recording_folder(videos[0], calibration)
+        if calibration is None:
+            raise VideoImportError('--calibration is needed with video files (or give a folder)')
         result = import_videos(
-            args.videos,
-            args.calibration,
+            videos,
+            calibration,
             args.out,
             fmt=args.calibration_format,
             unit=args.calibration_unit,
@@ -188,6 +203,45 @@ def run(args: argparse.Namespace) -> int:
 
 class VideoImportError(ValueError):
     """Videos that cannot be imported as asked (a user error, reported in one line)."""
+
+
+VIDEO_SUFFIXES = ('.mp4', '.avi', '.mov', '.mkv')
+CALIBRATION_PATTERNS = ('Calib*.toml', 'calib*.toml', '*.qca.txt')
+
+
+def recording_folder(folder: Path, calibration: Path | None = None) -> tuple[list[Path], Path]:
+    """Return a recording folder's videos (natural order) and its calibration.
+
+    Flat, as ../shared holds the Pose2Sim demo, or a Pose2Sim project's ``videos/`` and
+    ``calibration/``; ``calibration`` given wins over the folder's.
+    """
+    places = (folder, folder / 'videos')
+    videos = sorted(
+        {p for place in places for p in place.glob('*') if p.suffix.lower() in VIDEO_SUFFIXES},
+        key=lambda p: natural_key(p.name),
+    )
+    if len(videos) < 2:
+        raise VideoImportError(
+            f'{folder}: {len(videos)} videos ({", ".join(VIDEO_SUFFIXES)}, there or in videos/); '
+            'a rig needs at least 2'
+        )
+    if calibration is not None:
+        return videos, calibration
+    found = sorted(
+        {
+            p
+            for place in (folder, folder / 'calibration')
+            for pattern in CALIBRATION_PATTERNS
+            for p in place.glob(pattern)
+        }
+    )
+    if len(found) != 1:
+        raise VideoImportError(
+            f'{folder}: {len(found)} calibrations (Calib*.toml or *.qca.txt, there or in '
+            f'calibration/){": " + ", ".join(p.name for p in found) if found else ""}; give '
+            'the one to use with --calibration'
+        )
+    return videos, found[0]
 
 
 def _split_names(text: str | None) -> list[str] | None:

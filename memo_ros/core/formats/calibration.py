@@ -94,7 +94,7 @@ def ros_name(raw: str, index: int) -> str:
     return name if name[0].isalpha() else f'cam{name}'
 
 
-def _natural_key(text: str) -> list:
+def natural_key(text: str) -> list:
     """Sort key ordering 'cam2' before 'cam10'."""
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r'(\d+)', text)]
 
@@ -199,7 +199,7 @@ def read_qualisys(path: str | Path, video_only: bool = True) -> list[Camera]:
         tags = [t for t in tags if any(m in t.get('model', '').lower() for m in ('video', 'none'))]
     if not tags:
         raise CalibrationError(f'{path}: no (video) cameras in the Qualisys calibration')
-    tags.sort(key=lambda t: _natural_key(t.get('serial', '')))
+    tags.sort(key=lambda t: natural_key(t.get('serial', '')))
     return [_qualisys_camera(tag, i, path) for i, tag in enumerate(tags)]
 
 
