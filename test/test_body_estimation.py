@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import load_default_body
+from memo_ros.core.geometry.body import load_default_body, lowest_point
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render_labels
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
@@ -14,6 +14,7 @@ from memo_ros.core.multiview.body_estimation import (
     scaled_body,
     silhouette_from_contours,
 )
+from memo_ros.core.multiview.body_height import fit_height
 from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
 
 
@@ -107,6 +108,36 @@ def test_height_takes_the_upright_frames_not_a_crouch():
     height, hulls = measure_height(frames, template=load_default_body())
     assert min(h.top for h in hulls) < 1.6  # the crouch is lower
     assert height == pytest.approx(1.75, abs=0.006)
+
+
+@pytest.mark.parametrize('crouched', [False, True])
+def test_the_start_fits_the_height_a_crouch_hides_from_the_hull(crouched):
+    """A 1.72 m person crouching (knees 1.2 rad, hips 1 rad): the hull says 1.555 m.
+
+    The starts at the hull's height and above fit best near the truth; standing, the hull's
+    height stays (the misfit only rises above it).
+    """
+    cameras = rig()
+    truth = scaled_body(load_default_body(), 1.72)
+    q = truth.neutral()
+    q[0:2] = (0.1, -0.1)
+    q[3:6] = matrix_to_rotvec(rot_z(0.7))
+    if crouched:
+        for side in ('l', 'r'):
+            q[truth.coordinate_index(f'knee_{side}_y')] = -1.2
+            q[truth.coordinate_index(f'hip_{side}_y')] = 1.0
+    rotations, origins = truth.forward_kinematics(q)
+    q[2] -= float(lowest_point(truth, rotations, origins))  # feet on the floor
+    masks = silhouettes(truth, q, cameras)
+    contours = {c.name: occluding_contours(silhouette_outlines(m)) for c, m in zip(cameras, masks)}
+    hull, _ = measure_height([(cameras, masks)], template=load_default_body())
+    fit = fit_height(load_default_body(), cameras, contours, hull)
+    if crouched:  # most of what the hull misses is found (1.671 m measured)
+        assert hull < 1.6, hull
+        assert abs(fit.height - 1.72) < 0.35 * (1.72 - hull), fit
+    else:
+        assert fit.height == hull == pytest.approx(1.72, abs=0.006), fit
+        assert len(fit.tried) == 3  # rising twice from the first
 
 
 def test_no_silhouettes_no_body():

@@ -31,7 +31,9 @@ from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
     frame_silhouettes,
+    scaled_body,
 )
+from memo_ros.core.multiview.body_height import fit_height
 from memo_ros.core.multiview.motion import (
     ProcessNoise,
     coordinates_from_names,
@@ -223,6 +225,14 @@ PARAMS: tuple[Param, ...] = (
         'the last are reported waiting)',
         1,
         1000,
+        read_only=True,
+    ),
+    Param(
+        'body_height_fit',
+        True,
+        'body_source silhouettes: the height is the one at which the start fits the last of '
+        "those frames best, refitted from the visual hull's height up to 1.32 times it (a "
+        "person in a lunge or a kick at the first frame; about 1 s more); false: the hull's",
         read_only=True,
     ),
     Param(
@@ -1007,6 +1017,16 @@ class TrackerNode(Node):
         except ValueError as exc:
             self.health.drop('measuring_body', f'body not measured: {exc}; trying again')
             return False
+        hull, fit = height, None
+        if self.params['body_height_fit']:
+            fit = fit_height(
+                self.studio.body,
+                self.studio.cameras,
+                contours,
+                hull,
+                tracker_settings(self.params),
+            )
+            body, height = scaled_body(self.studio.body, fit.height), fit.height
         self.body = body
         # the studio's initial pose (use_initial_pose) holds for the measured body too
         self.tracker = ArticulatedTracker(
@@ -1014,9 +1034,17 @@ class TrackerNode(Node):
         )
         self.body_silhouettes = None
         self.health.set('body_height_m', f'{height:.3f}')
+        self.health.set('body_hull_height_m', f'{hull:.3f}')
         self.get_logger().info(
             f'body measured from {len(frames)} frame(s) of silhouettes: height {height:.3f} m '
-            f'(the studio body, {self.studio.body.standing_height():.3f} m, scaled)'
+            f'(visual hull {hull:.3f} m; the studio body, '
+            f'{self.studio.body.standing_height():.3f} m, scaled)'
+            + (
+                '; starts fitted at '
+                + ', '.join(f'{h:.3f} m: misfit {m:.2f}' for h, m in fit.tried)
+                if fit is not None
+                else ''
+            )
         )
         return True
 

@@ -433,6 +433,39 @@ class ArticulatedTracker:
             reason='no contours: predicted only',
         )
 
+    def refit(self, q: np.ndarray, contours: dict[str, np.ndarray]) -> np.ndarray:
+        """Return pose ``q`` fitted to one frame's contours from a broad prior, in the ranges.
+
+        As a start refits its candidates (``init_iterations``, every part in every camera).
+        """
+        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
+        s = self.settings
+        rays = {
+            c: contour_rays(self.cameras[c], t, s.contour_smoothing, s.smoothing_shift)
+            for c, t in contours.items()
+        }
+        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        ekf = ArticulatedEKF(self.model)
+        self._refit(ekf, np.asarray(q, float), contours, rays, masks)
+        return ekf.q.copy()
+
+    def misfit(self, q: np.ndarray, contours: dict[str, np.ndarray]) -> float:
+        """Return pose ``q``'s robust misfit per contour sample (every part in every camera).
+
+        As the start and the twin weigh poses (sigma^2 per sample); NaN without samples.
+        """
+        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
+        samples = sum(len(t) for t in contours.values())
+        if not samples:
+            return float('nan')
+        s = self.settings
+        rays = {
+            c: contour_rays(self.cameras[c], t, s.contour_smoothing, s.smoothing_shift)
+            for c, t in contours.items()
+        }
+        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        return self._fit_cost(q, contours, rays, masks, samples) / samples
+
     # ------------------------------------------------------------ the twin hypothesis
     @property
     def heading_confidence(self) -> float:

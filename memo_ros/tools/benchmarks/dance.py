@@ -23,7 +23,7 @@ from concurrent.futures import ProcessPoolExecutor
 import multiprocessing
 import os
 import time
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
@@ -36,8 +36,15 @@ from memo_ros.core.evaluation.metrics import (
 )
 from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body, load_studio_actor
 from memo_ros.core.geometry.render import render
-from memo_ros.core.multiview.body_estimation import estimate_body, frame_silhouettes
+from memo_ros.core.multiview.body_estimation import (
+    estimate_body,
+    frame_silhouettes,
+    scaled_body,
+)
 from memo_ros.core.simulation.scenarios import RIGS, Scenario, dance_moves, make_scenario
+
+if TYPE_CHECKING:
+    from memo_ros.core.multiview.tracking import TrackerSettings
 
 HEADINGS_DEG = tuple(range(0, 360, 45))
 SIZE = (320, 240)  # half the studio's 640x480: the full sweep in a few minutes on 2 cores
@@ -329,7 +336,7 @@ def track_dance(
         if tracker is None:
             model = body
             if tracker_body == 'measured':
-                model, measured_height = measured_body(scenario.cameras, tables)
+                model, measured_height = measured_body(scenario.cameras, tables, settings)
             tracker = ArticulatedTracker(model, scenario.cameras, settings, initial_pose=initial)
         started = time.perf_counter()
         result = tracker.step(int(round(times[k] * 1e9)), tables)
@@ -358,13 +365,21 @@ def track_dance(
     )
 
 
-def measured_body(cameras: list, tables: dict[str, np.ndarray]) -> tuple[Body, float]:
+def measured_body(
+    cameras: list, tables: dict[str, np.ndarray], settings: TrackerSettings | None = None
+) -> tuple[Body, float]:
     """Return the shipped average adult scaled to the height of one frame's silhouettes.
 
     As tracker_node measures a person with ``body_source: silhouettes`` (its ``body_frames``
-    frames; one here), and that height.
+    frames, one here; the visual hull's height, then the start's best fit from there up,
+    ``body_height_fit``), and that height.
     """
-    return estimate_body([frame_silhouettes(cameras, tables)], load_default_body())
+    from memo_ros.core.multiview.body_height import fit_height
+
+    template = load_default_body()
+    _, hull = estimate_body([frame_silhouettes(cameras, tables)], template)
+    height = fit_height(template, cameras, tables, hull, settings).height
+    return scaled_body(template, height), height
 
 
 def _contour_frames(
