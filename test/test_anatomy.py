@@ -171,20 +171,18 @@ def test_a_track_started_backwards_is_turned_round_by_its_twin():
     assert abs(error) < 20.0, error
 
 
-def test_a_track_decided_the_wrong_way_round_is_turned_at_the_next_look_at_its_twin():
-    """studio-dance, orthogonal rig, facing 90 degrees; the track turned round after frame 3.
+def _turned_round_after_frame_3(name: str, frames: int, settings: TrackerSettings, **kwargs):
+    """Heading error (deg) per frame and the last result of scenario ``name`` (320x240).
 
-    The look again at frame 33 refits the twin from a broad prior as a start does: with only an
-    update from the mirror of the turned pose (which the dance's moves had dragged off), every
-    look kept the turned pose, and the track stayed turned for all 45 frames (measured).
+    Tracked from its true start, the leader replaced by its twin after frame 3 and decided.
     """
     from memo_ros.core.simulation.scenarios import make_scenario
     from memo_ros.tools.benchmarks.dance import _contour_frames
 
-    scenario = make_scenario('studio-dance', BODY, 320, 240, 45, heading=np.radians(90.0))
+    scenario = make_scenario(name, BODY, 320, 240, frames, **kwargs)
     times = np.arange(scenario.frames) / scenario.frame_rate
     truth, _ = scenario.coordinates(times)
-    tracker = ArticulatedTracker(BODY, scenario.cameras, TrackerSettings(), initial_pose=truth[0])
+    tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=truth[0])
     errors = []
     for k, tables in enumerate(_contour_frames(scenario, BODY, truth, 'silhouettes')):
         result = tracker.step(int(round(times[k] * 1e9)), tables)
@@ -194,6 +192,19 @@ def test_a_track_decided_the_wrong_way_round_is_turned_at_the_next_look_at_its_t
             tracker.evidence = tracker.settings.twin_evidence
         turn = facing(BODY, tracker.ekf.q) - facing(BODY, truth[k])
         errors.append(abs(np.degrees(np.angle(np.exp(1j * turn)))))
+    return errors, result
+
+
+def test_a_track_decided_the_wrong_way_round_is_turned_at_the_next_look_at_its_twin():
+    """studio-dance, orthogonal rig, facing 90 degrees; the track turned round after frame 3.
+
+    The look again at frame 33 refits the twin from a broad prior as a start does: with only an
+    update from the mirror of the turned pose (which the dance's moves had dragged off), every
+    look kept the turned pose, and the track stayed turned for all 45 frames (measured).
+    """
+    errors, result = _turned_round_after_frame_3(
+        'studio-dance', 45, TrackerSettings(), heading=np.radians(90.0)
+    )
     assert min(errors[4:30]) > 150.0  # turned round until the look again
     assert result.twin_swaps == 1 and max(errors[38:]) < 20.0, np.round(errors)
 
@@ -314,23 +325,7 @@ def test_the_hips_twist_ties_a_standing_dancers_heading_to_the_legs():
 
 def _walk_turned_round(settings: TrackerSettings) -> list[float]:
     """Heading error (deg) per frame of studio-walk, the track turned round after frame 3."""
-    from memo_ros.core.simulation.scenarios import make_scenario
-    from memo_ros.tools.benchmarks.dance import _contour_frames
-
-    scenario = make_scenario('studio-walk', BODY, 320, 240, 40)
-    times = np.arange(scenario.frames) / scenario.frame_rate
-    truth, _ = scenario.coordinates(times)
-    tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=truth[0])
-    errors = []
-    for k, tables in enumerate(_contour_frames(scenario, BODY, truth, 'silhouettes')):
-        tracker.step(int(round(times[k] * 1e9)), tables)
-        if k == 3:  # decided the wrong way round: the leader replaced by its twin
-            tracker.ekf = tracker._twin_filter(tracker.ekf, tracker.ekf.q)
-            tracker.twin_ekf, tracker.since_twin = None, 0
-            tracker.evidence = tracker.settings.twin_evidence
-        turn = facing(BODY, tracker.ekf.q) - facing(BODY, truth[k])
-        errors.append(abs(np.degrees(np.angle(np.exp(1j * turn)))))
-    return errors
+    return _turned_round_after_frame_3('studio-walk', 40, settings)[0]
 
 
 def test_a_track_walking_backwards_is_turned_round_by_the_direction_of_travel():
