@@ -5,10 +5,16 @@ The live graph paced by back-pressure, every frame processed and its outputs rec
 
 from __future__ import annotations
 
+import struct
+import threading
+import time
+from types import SimpleNamespace
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from memo_ros.ros.bagio import bag_topics, read_messages, stamp_to_ns
 from memo_ros.ros.dds import MatchedOnDiagnostics
+from memo_ros.tools.replay import Pacer
 from memo_ros.tools.simulate import simulate
 
 
@@ -67,3 +73,37 @@ def test_the_nodes_side_of_each_match_is_read_from_their_diagnostics():
     assert matched.missing(wanted) == ['subscribers./memo/markers']  # the recorder not yet
     node.callback(report('/tracker_node', {'subscribers./memo/markers': '4'}))
     assert matched.missing(wanted) == []
+
+
+def test_the_pacer_waits_for_a_long_start_while_the_graph_is_alive():
+    """Frame 0 takes 1 s (a start): its diagnostics keep the wait going past the 0.3 s timeout.
+
+    A graph silent for the timeout is not waited for longer; the wait that gave up is counted.
+    """
+
+    def frame(stamp_ns: int):
+        return SimpleNamespace(data=b'\0' * 4 + struct.pack('<iI', 0, stamp_ns))
+
+    def done(stamp_ns: int):
+        return SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=stamp_ns))
+
+    pacer = Pacer(timeout=0.3)
+    pacer.before_publish(frame(1000), pace=True)
+
+    def graph() -> None:
+        for _ in range(10):
+            time.sleep(0.1)
+            pacer.on_diagnostics(None)
+        pacer.on_processed(done(1000))
+
+    worker = threading.Thread(target=graph)
+    start = time.monotonic()
+    worker.start()
+    pacer.before_publish(frame(2000), pace=True)  # waits for frame 1000 to be done
+    waited = time.monotonic() - start
+    worker.join()
+    assert pacer.timeouts == 0 and waited >= 0.9, waited
+    start = time.monotonic()
+    pacer.before_publish(frame(3000), pace=True)  # frame 2000 never done, the graph silent
+    assert pacer.timeouts == 1 and 0.3 <= time.monotonic() - start < 1.0
+    assert pacer.frames == 3

@@ -6,9 +6,11 @@ Launch it, play the cameras into it, record what it publishes.
 defaults to ``BAG.yaml``, as the simulator writes it), plays the bag's image and camera_info topics
 over DDS and records every output topic to the mcap bag OUT.  With ``--rate 0`` (the default)
 playback is paced by the graph itself: before frame t+1 goes out, the player waits until the
-tracker said frame t is done on ``/memo/processed`` (or ``--frame-timeout`` passed), so the result
-does not depend on the machine's load.  ``--rate R`` plays with the recorded timing instead.  It
-exits when the input is exhausted and the graph has drained; the node logs go to OUT.log.
+tracker said frame t is done on ``/memo/processed``, as long as the graph shows it is alive (a
+node's /diagnostics or an outcome within ``--frame-timeout``; at most MAX_FRAME_WAIT_S), so the
+result does not depend on the machine's load, nor on how long a start takes.  ``--rate R``
+plays with the recorded timing instead.  It exits when the input is exhausted and the graph has
+drained; the node logs go to OUT.log.
 """
 
 from __future__ import annotations
@@ -67,7 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '--frame-timeout',
         type=float,
         default=2.0,
-        help='with back-pressure, longest wait for a frame to be done, s (default 2)',
+        help='with back-pressure, how long the graph may stay silent (no node diagnostics, no '
+        'frame done) before the next frame goes out, s (default 2)',
     )
     parser.add_argument(
         '--record-contours',
@@ -147,10 +150,16 @@ def frame_stamp(data: bytes) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
+MAX_FRAME_WAIT_S = 120.0  # longest wait for one frame however alive the graph looks
+
+
 class Pacer:
     """Back-pressure.
 
-    Before a new frame goes out, wait until the graph said the previous one is done.
+    Before a new frame goes out, wait until the graph said the previous one is done: while the
+    graph shows it is alive (its nodes' /diagnostics, once a second), a start that takes seconds
+    (the heading search, the body's height) is waited for, so the next frames are not segmented
+    before the tracked body they wait for exists; a graph silent for ``timeout`` is not.
     """
 
     def __init__(self, timeout: float) -> None:
@@ -160,6 +169,7 @@ class Pacer:
         self.frames = 0
         self.processed = 0
         self.timeouts = 0
+        self.alive = time.monotonic()  # when the graph last said anything
         self._cond = threading.Condition()
 
     def on_processed(self, msg) -> None:
@@ -168,7 +178,13 @@ class Pacer:
         with self._cond:
             self.processed += 1
             self.done_ns = max(self.done_ns, stamp)
+            self.alive = time.monotonic()
             self._cond.notify_all()
+
+    def on_diagnostics(self, _msg) -> None:
+        """Note that a node of the graph is alive."""
+        with self._cond:
+            self.alive = time.monotonic()
 
     def before_publish(self, item, pace: bool) -> None:
         """Hold a frame back until the previous one was processed (with back-pressure)."""
@@ -176,11 +192,25 @@ class Pacer:
         if self.current_ns is not None and stamp <= self.current_ns:
             return
         if pace and self.current_ns is not None:
-            with self._cond:
-                if not self._cond.wait_for(lambda: self.done_ns >= self.current_ns, self.timeout):
-                    self.timeouts += 1
+            self._wait_done()
         self.current_ns = stamp
         self.frames += 1
+
+    def wait_last(self) -> None:
+        """Wait for the last frame played as for any other (not counted as a frame)."""
+        self._wait_done()
+
+    def _wait_done(self) -> None:
+        """Wait for the current frame while the graph is alive; count a wait that gave up."""
+        start = time.monotonic()
+        with self._cond:
+            self.alive = max(self.alive, start)
+            while self.done_ns < self.current_ns:
+                now = time.monotonic()
+                if now - self.alive > self.timeout or now - start > MAX_FRAME_WAIT_S:
+                    self.timeouts += 1
+                    return
+                self._cond.wait(min(self.timeout, 0.1))
 
 
 def replay(
@@ -197,6 +227,7 @@ def replay(
 
     Record its outputs to ``out``; a report.
     """
+    from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Header
 
     from memo_ros.ros.dds import (
@@ -240,6 +271,7 @@ def replay(
         spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
         try:
             node.create_subscription(Header, '/memo/processed', pacer.on_processed, 100)
+            node.create_subscription(DiagnosticArray, '/diagnostics', pacer.on_diagnostics, 100)
             matched = MatchedOnDiagnostics(node)
             recorder = BagRecorder(
                 node, out, RecordOptions(topics=[*OUTPUT_TOPICS, *(extra_topics or [])])
@@ -263,8 +295,7 @@ def replay(
             player.flush()
             progress.close()
             if rate == 0 and pacer.current_ns is not None:  # the last frame
-                with pacer._cond:
-                    pacer._cond.wait_for(lambda: pacer.done_ns >= pacer.current_ns, frame_timeout)
+                pacer.wait_last()
             _drain(recorder)
             seconds = time.monotonic() - start
             recorded = dict(recorder.counts)
