@@ -75,10 +75,11 @@ def test_the_nodes_side_of_each_match_is_read_from_their_diagnostics():
     assert matched.missing(wanted) == []
 
 
-def test_the_pacer_waits_for_a_long_start_while_the_graph_is_alive():
-    """Frame 0 takes 1 s (a start): its diagnostics keep the wait going past the 0.3 s timeout.
+def test_the_pacer_waits_for_a_long_start_while_the_tracker_works_on_it():
+    """Frame 0 takes 1 s (a start): the tracker's working_on keeps the wait past the 0.3 s timeout.
 
-    A graph silent for the timeout is not waited for longer; the wait that gave up is counted.
+    The other nodes' diagnostics, or the tracker's while idle (killed and restarted, the frame
+    lost with it), do not: such a wait gives up after the timeout and is counted.
     """
 
     def frame(stamp_ns: int):
@@ -87,13 +88,17 @@ def test_the_pacer_waits_for_a_long_start_while_the_graph_is_alive():
     def done(stamp_ns: int):
         return SimpleNamespace(stamp=SimpleNamespace(sec=0, nanosec=stamp_ns))
 
+    def diagnostics(node: str, working_on: str):
+        status = DiagnosticStatus(name=node, values=[KeyValue(key='working_on', value=working_on)])
+        return DiagnosticArray(status=[status])
+
     pacer = Pacer(timeout=0.3)
     pacer.before_publish(frame(1000), pace=True)
 
     def graph() -> None:
         for _ in range(10):
             time.sleep(0.1)
-            pacer.on_diagnostics(None)
+            pacer.on_diagnostics(diagnostics('/tracker_node', '1000'))
         pacer.on_processed(done(1000))
 
     worker = threading.Thread(target=graph)
@@ -103,7 +108,18 @@ def test_the_pacer_waits_for_a_long_start_while_the_graph_is_alive():
     waited = time.monotonic() - start
     worker.join()
     assert pacer.timeouts == 0 and waited >= 0.9, waited
+
+    def idle() -> None:
+        for _ in range(10):
+            time.sleep(0.1)
+            pacer.on_diagnostics(diagnostics('/tracker_node', ''))
+            pacer.on_diagnostics(diagnostics('/cam/contour_node', ''))
+
+    worker = threading.Thread(target=idle)
     start = time.monotonic()
-    pacer.before_publish(frame(3000), pace=True)  # frame 2000 never done, the graph silent
-    assert pacer.timeouts == 1 and 0.3 <= time.monotonic() - start < 1.0
+    worker.start()
+    pacer.before_publish(frame(3000), pace=True)  # frame 2000 never done, no tracker at work
+    waited = time.monotonic() - start
+    worker.join()
+    assert pacer.timeouts == 1 and 0.3 <= waited < 0.9, waited
     assert pacer.frames == 3

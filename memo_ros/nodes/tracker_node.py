@@ -897,6 +897,8 @@ class TrackerNode(Node):
             if job is None:
                 return
             stamp, frame, missing = job
+            # on /diagnostics while a frame takes long (a start): a paced replay waits for it
+            self.health.set('working_on', stamp)
             try:
                 outcome = self._track(stamp, frame, missing)
             except Exception as exc:  # noqa: BLE001 - counted, the node goes on
@@ -905,6 +907,8 @@ class TrackerNode(Node):
                 self.health.internal_error('tracking a frame', exc)
                 self.tracker.reset(use_initial_pose=False)  # its state may be half updated
                 outcome = INTERNAL_ERROR
+            finally:
+                self.health.set('working_on', '')
             self.gap_since_tracked = not outcome.startswith(TRACKING)
             self.pub_processed.publish(processed_message(stamp, outcome))
 

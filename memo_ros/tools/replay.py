@@ -6,9 +6,10 @@ Launch it, play the cameras into it, record what it publishes.
 defaults to ``BAG.yaml``, as the simulator writes it), plays the bag's image and camera_info topics
 over DDS and records every output topic to the mcap bag OUT.  With ``--rate 0`` (the default)
 playback is paced by the graph itself: before frame t+1 goes out, the player waits until the
-tracker said frame t is done on ``/memo/processed``, as long as the graph shows it is alive (a
-node's /diagnostics or an outcome within ``--frame-timeout``; at most MAX_FRAME_WAIT_S), so the
-result does not depend on the machine's load, nor on how long a start takes.  ``--rate R``
+tracker said frame t is done on ``/memo/processed``, as long as the tracker shows it is working
+(a frame on its /diagnostics, ``working_on``, or an outcome within ``--frame-timeout``; at most
+MAX_FRAME_WAIT_S), so the result depends neither on the machine's load nor on how long a start
+takes.  ``--rate R``
 plays with the recorded timing instead.  It exits when the input is exhausted and the graph has
 drained; the node logs go to OUT.log.
 """
@@ -69,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '--frame-timeout',
         type=float,
         default=2.0,
-        help='with back-pressure, how long the graph may stay silent (no node diagnostics, no '
-        'frame done) before the next frame goes out, s (default 2)',
+        help='with back-pressure, how long the tracker may show no work (no frame done, no '
+        'working_on on its diagnostics) before the next frame goes out, s (default 2)',
     )
     parser.add_argument(
         '--record-contours',
@@ -157,9 +158,10 @@ class Pacer:
     """Back-pressure.
 
     Before a new frame goes out, wait until the graph said the previous one is done: while the
-    graph shows it is alive (its nodes' /diagnostics, once a second), a start that takes seconds
-    (the heading search, the body's height) is waited for, so the next frames are not segmented
-    before the tracked body they wait for exists; a graph silent for ``timeout`` is not.
+    tracker says on /diagnostics (once a second) that it is working on a frame, a start that
+    takes seconds (the heading search, the body's height) is waited for, so the next frames are
+    not segmented before the tracked body they wait for exists; a tracker idle, killed or
+    restarted (the frame lost with it) for ``timeout`` is not.
     """
 
     def __init__(self, timeout: float) -> None:
@@ -169,7 +171,7 @@ class Pacer:
         self.frames = 0
         self.processed = 0
         self.timeouts = 0
-        self.alive = time.monotonic()  # when the graph last said anything
+        self.alive = time.monotonic()  # when the tracker last showed it works on a frame
         self._cond = threading.Condition()
 
     def on_processed(self, msg) -> None:
@@ -181,10 +183,14 @@ class Pacer:
             self.alive = time.monotonic()
             self._cond.notify_all()
 
-    def on_diagnostics(self, _msg) -> None:
-        """Note that a node of the graph is alive."""
-        with self._cond:
-            self.alive = time.monotonic()
+    def on_diagnostics(self, msg) -> None:
+        """Note a tracker that reports it is working on a frame (``working_on``)."""
+        busy = any(
+            kv.key == 'working_on' and kv.value for status in msg.status for kv in status.values
+        )
+        if busy:
+            with self._cond:
+                self.alive = time.monotonic()
 
     def before_publish(self, item, pace: bool) -> None:
         """Hold a frame back until the previous one was processed (with back-pressure)."""
