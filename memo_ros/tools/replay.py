@@ -151,7 +151,7 @@ def frame_stamp(data: bytes) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
-MAX_FRAME_WAIT_S = 120.0  # longest wait for one frame however alive the graph looks
+MAX_FRAME_WAIT_S = 120.0  # longest wait for one frame, however long the tracker says it works
 
 
 class Pacer:
@@ -207,7 +207,7 @@ class Pacer:
         self._wait_done()
 
     def _wait_done(self) -> None:
-        """Wait for the current frame while the graph is alive; count a wait that gave up."""
+        """Wait for the current frame while the tracker works on one; count a wait that gave up."""
         start = time.monotonic()
         with self._cond:
             self.alive = max(self.alive, start)
