@@ -9,9 +9,8 @@ playback is paced by the graph itself: before frame t+1 goes out, the player wai
 tracker said frame t is done on ``/memo/processed``, as long as the tracker shows it is working
 (a frame on its /diagnostics, ``working_on``, or an outcome within ``--frame-timeout``; at most
 MAX_FRAME_WAIT_S), so the result depends neither on the machine's load nor on how long a start
-takes.  ``--rate R``
-plays with the recorded timing instead.  It exits when the input is exhausted and the graph has
-drained; the node logs go to OUT.log.
+takes.  ``--rate R`` plays with the recorded timing instead.  It exits when the input is
+exhausted and the graph has drained; the node logs go to OUT.log.
 """
 
 from __future__ import annotations
@@ -198,15 +197,11 @@ class Pacer:
         if self.current_ns is not None and stamp <= self.current_ns:
             return
         if pace and self.current_ns is not None:
-            self._wait_done()
+            self.wait_done()
         self.current_ns = stamp
         self.frames += 1
 
-    def wait_last(self) -> None:
-        """Wait for the last frame played as for any other (not counted as a frame)."""
-        self._wait_done()
-
-    def _wait_done(self) -> None:
+    def wait_done(self) -> None:
         """Wait for the current frame while the tracker works on one; count a wait that gave up."""
         start = time.monotonic()
         with self._cond:
@@ -301,7 +296,7 @@ def replay(
             player.flush()
             progress.close()
             if rate == 0 and pacer.current_ns is not None:  # the last frame
-                pacer.wait_last()
+                pacer.wait_done()
             _drain(recorder)
             seconds = time.monotonic() - start
             recorded = dict(recorder.counts)

@@ -66,8 +66,6 @@ def fit_height(
         tried.append((height, tracker.misfit(tracker.refit(q, contours), contours)))
         if len(tried) > 2 and tried[-1][1] > tried[-2][1] > tried[-3][1]:
             break  # rising twice: past the least (once may be one fit gone wrong)
-    if not tried:
-        return HeightFit(hull_height, hull_height)
     best = int(np.argmin([m for _, m in tried]))
     if tried[best][1] > (1.0 - MIN_GAIN) * tried[0][1]:
         return HeightFit(hull_height, hull_height, tried)

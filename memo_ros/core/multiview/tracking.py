@@ -285,16 +285,10 @@ class ArticulatedTracker:
         """
         start = time.perf_counter()
         self._may_search = may_search or _always
-        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
+        contours, rays = self._frame_rays(contours)
         samples = sum(len(t) for t in contours.values())
         if not samples:
             return self._no_body(stamp_ns, start)
-        rays = {
-            c: contour_rays(
-                self.cameras[c], t, self.settings.contour_smoothing, self.settings.smoothing_shift
-            )
-            for c, t in contours.items()
-        }
         masks = {
             c: (
                 np.ones(len(PART_NAMES), bool)
@@ -438,12 +432,7 @@ class ArticulatedTracker:
 
         As a start refits its candidates (``init_iterations``, every part in every camera).
         """
-        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
-        s = self.settings
-        rays = {
-            c: contour_rays(self.cameras[c], t, s.contour_smoothing, s.smoothing_shift)
-            for c, t in contours.items()
-        }
+        contours, rays = self._frame_rays(contours)
         masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
         ekf = ArticulatedEKF(self.model)
         self._refit(ekf, np.asarray(q, float), contours, rays, masks)
@@ -454,17 +443,22 @@ class ArticulatedTracker:
 
         As the start and the twin weigh poses (sigma^2 per sample); NaN without samples.
         """
-        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
+        contours, rays = self._frame_rays(contours)
         samples = sum(len(t) for t in contours.values())
         if not samples:
             return float('nan')
+        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        return self._fit_cost(q, contours, rays, masks, samples) / samples
+
+    def _frame_rays(self, contours: dict[str, np.ndarray]) -> tuple[dict, dict]:
+        """Return the frame's non-empty contours of the rig's cameras, and their samples' rays."""
+        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
         s = self.settings
         rays = {
             c: contour_rays(self.cameras[c], t, s.contour_smoothing, s.smoothing_shift)
             for c, t in contours.items()
         }
-        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
-        return self._fit_cost(q, contours, rays, masks, samples) / samples
+        return contours, rays
 
     # ------------------------------------------------------------ the twin hypothesis
     @property

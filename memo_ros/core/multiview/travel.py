@@ -24,10 +24,6 @@ class PelvisPath:
     def __init__(self) -> None:
         self._points: deque[tuple[float, float, float]] = deque()
 
-    def clear(self) -> None:
-        """Forget the path (a new track)."""
-        self._points.clear()
-
     def add(self, t: float, q: np.ndarray) -> None:
         """Add the pose ``q``'s root (x, y) at time ``t`` (s); older points than the window go."""
         self._points.append((t, float(q[0]), float(q[1])))
