@@ -85,6 +85,11 @@ def rate_figures(
         'input_fps': (len(timed) - 1) / in_span if in_span > 0 else None,
         'output_fps': (len(out_stamps) - 1) / out_span if out_span > 0 else None,
         'latency_ms': {
+            # the player's own lag: its images go out from another thread than the camera_info
+            # that stamps the frame
+            'images_out': percentiles(
+                [ms * (t.images_out - t.stamp) for t in timed if t.images_out is not None]
+            ),
             'contours': percentiles(contours_last),
             'contours_per_camera': {
                 c: percentiles([ms * (t.contours[c] - t.stamp) for t in timed if c in t.contours])
@@ -111,6 +116,9 @@ def rate_figures(
         'per_frame': {
             'index': [t.index for t in timed],
             'outcome': [t.outcome for t in timed],
+            'images_out_ms': [
+                round(ms * (t.images_out - t.stamp), 2) if t.images_out else None for t in timed
+            ],
             'contours_ms': [
                 round(ms * (max(t.contours.values()) - t.stamp), 2) if t.contours else None
                 for t in timed
