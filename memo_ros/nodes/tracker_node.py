@@ -715,11 +715,13 @@ class TrackerNode(Node):
             table = table[finite]
         with self.lock:
             frame = self._frame_for(stamp, f'{cam} contours')
+            # the camera is alive even when its contours come too late for their frame (after the
+            # selector's assignment): it is waited for again, or it would never be
+            self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
+            self.missed[cam] = 0
             if frame is None:
                 return
             frame.contours[cam] = table
-            self.newest_contours_ns[cam] = max(stamp, self.newest_contours_ns.get(cam, stamp))
-            self.missed[cam] = 0
             self._notify()
 
     def _on_assignment(self, msg: DiagnosticArray) -> None:
