@@ -16,9 +16,12 @@ import pytest
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
 
+from memo_ros.core.latency.decimation import Decimation
 from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.ros.dds import ros_session
+from memo_ros.ros.decimation_messages import DECIMATION_QOS, DECIMATION_TOPIC, decimation_message
 from memo_ros.ros.pointcloud import pointcloud_to_array
 from memo_ros.tools.simulate import simulate
 
@@ -205,12 +208,19 @@ def _background_info(sec: int) -> CameraInfo:
 
 
 def _run_background_node(
-    ros_env, params, frames, first_sec: int, stamps: list[int] | None = None, before=()
+    ros_env,
+    params,
+    frames,
+    first_sec: int,
+    stamps: list[int] | None = None,
+    before=(),
+    decimation: Decimation | None = None,
 ) -> tuple[dict, list]:
     """Start a 64x48 contour_node, feed it frames (None: a lost image) with a camera_info each.
 
     Stamped ``first_sec`` + k, or ``stamps`` (seconds); the messages ``before`` (Image or
-    CameraInfo) go first.  Stop it; return its /diagnostics values and its contour clouds.
+    CameraInfo) go first, and ``decimation`` is announced before them as the tracker would.
+    Stop it; return its /diagnostics values and its contour clouds.
     """
     stamps = stamps or [first_sec + k for k in range(len(frames))]
     process = _start_node(ros_env, 'cam_bg', *params)
@@ -227,6 +237,10 @@ def _run_background_node(
             while image_pub.get_subscription_count() < 1 or info_pub.get_subscription_count() < 1:
                 executor.spin_once(timeout_sec=0.1)
                 assert time.monotonic() < deadline, 'contour_node did not appear'
+            if decimation is not None:
+                node.create_publisher(Header, DECIMATION_TOPIC, DECIMATION_QOS).publish(
+                    decimation_message(decimation)
+                )
             time.sleep(1.0)
             for msg in before:
                 (image_pub if isinstance(msg, Image) else info_pub).publish(msg)
@@ -239,8 +253,10 @@ def _run_background_node(
                 while time.monotonic() < end:
                     executor.spin_once(timeout_sec=0.05)
             end = time.monotonic() + 15
-            while (  # until every image sent is processed or refused as out of order
-                int(values.get('processed', 0)) + int(values.get('dropped.out_of_order', 0))
+            while (  # until every image sent is processed, refused as out of order or shed
+                int(values.get('processed', 0))
+                + int(values.get('dropped.out_of_order', 0))
+                + int(values.get('dropped.shed', 0))
                 < sum(f is not None for f in frames)
                 and time.monotonic() < end
             ):
@@ -602,3 +618,29 @@ def test_every_frame_of_a_300_hz_burst_is_processed_or_counted_once(ros_env):
     print(f'{frames} frames at 300 Hz: {processed} processed, dropped {values}')
     assert dropped > 0, values  # the burst is meant to overrun the node
     assert frames - 1 <= processed + dropped <= frames, values
+
+
+def test_images_the_decimation_leaves_out_are_counted_shed_and_not_segmented(ros_env):
+    """Under the live latency policy a contour node keeps exactly the frames the tracker keeps.
+
+    From the announced stamp on, one in ``every``, the others counted shed (no contours, no
+    image_lost): the same stamps in every node, since each applies the same announcement.
+    """
+    params = ('background_frames:=3', 'min_region_area:=20')
+    empty, _ = _scene()
+    frames = [empty] * 3
+    for k in range(7):
+        frame = empty.copy()
+        frame[10:40, 12 + 4 * k : 26 + 4 * k] = 200
+        frames.append(frame)
+    decimation = Decimation(from_ns=5 * 10**9, every=2, period_ns=10**9, origin_ns=4 * 10**9)
+    values, seen = _run_background_node(ros_env, params, frames, 1, decimation=decimation)
+    kept = [
+        s for s in range(1, 11) if decimation.from_ns > s * 10**9 or decimation.keeps(s * 10**9)
+    ]
+    assert kept == [1, 2, 3, 4, 6, 8, 10]
+    assert [c.header.stamp.sec for c in seen] == kept
+    assert int(values['processed']) == len(kept), values
+    assert int(values['dropped.shed']) == 3, values
+    assert not any(k.startswith(('dropped.image_lost', 'dropped.frames_missing')) for k in values)
+    assert values['decimation'] == '2'

@@ -19,10 +19,12 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
+from std_msgs.msg import Header
 
 from memo_ros.core.formats.studio import Studio, studio_path
 from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.geometry.render import render
+from memo_ros.core.latency.decimation import Decimation
 from memo_ros.core.multiview.motion import coordinates_from_names
 from memo_ros.core.multiview.selection import CameraSelector, visibility_index
 from memo_ros.core.simulation.scenarios import studio_cameras
@@ -35,6 +37,7 @@ from memo_ros.ros.assignment_messages import (
 from memo_ros.ros.bagio import read_messages, stamp_to_ns
 from memo_ros.ros.body_messages import stamp_from_ns
 from memo_ros.ros.dds import ros_session
+from memo_ros.ros.decimation_messages import DECIMATION_QOS, DECIMATION_TOPIC, decimation_message
 from memo_ros.tools.echo import CsvPrinter, YamlPrinter
 from memo_ros.tools.simulate import simulate
 
@@ -415,3 +418,26 @@ def test_studio_arm_bag_the_occluded_arm_is_not_selected_from_the_camera_it_is_h
     assert {('upper_arm_r', 'cam_side'), ('forearm_r', 'cam_top')} <= {
         (n, c) for _, n, c in occluded
     }
+
+
+def test_frames_the_decimation_leaves_out_get_no_assignment_and_are_counted_shed(ros_env):
+    """Under the live latency policy the selector assigns cameras only for the frames kept."""
+    node_process = _start_node(ros_env, STUDIO, '-p', 'require_contours:=false')
+    cameras = Studio.load(STUDIO).cameras
+    names = [c.name for c in cameras]
+    stamps = [10 * NS + k * NS // 10 for k in range(10)]  # 10 Hz frames from t = 10 s
+    decimation = Decimation(stamps[4], 3, NS // 10, stamps[3])
+    with ros_session('selector_feeder', ros_env.domain_id) as (node, executor):
+        feed = Feeder(node, executor, cameras)
+        announce = node.create_publisher(Header, DECIMATION_TOPIC, DECIMATION_QOS)
+        feed.wait_for_node()
+        announce.publish(decimation_message(decimation))
+        feed.spin(0.5)
+        for stamp in stamps:
+            feed.frame(stamp, names)
+        kept = [s for s in stamps if s < decimation.from_ns or decimation.keeps(s)]
+        feed.wait_for(lambda: len(feed.assignments) == len(kept))
+        feed.wait_for(lambda: feed.diagnostics.get('dropped.shed') == str(len(stamps) - len(kept)))
+    _stop(node_process)
+    assert sorted(feed.assignments) == kept == stamps[:4] + [stamps[6], stamps[9]]
+    assert feed.diagnostics['decimation'] == '3'

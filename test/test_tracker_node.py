@@ -19,11 +19,13 @@ from test_tracking_core import _silhouette_contours
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import load_studio_actor
+from memo_ros.core.latency.decimation import Decimation
 from memo_ros.core.multiview.selection import Assignment
 from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.body_messages import PROCESSED_TOPIC, stamp_from_ns
 from memo_ros.ros.dds import ros_session
+from memo_ros.ros.decimation_messages import DECIMATION_QOS, DECIMATION_TOPIC
 from memo_ros.ros.pointcloud import array_to_pointcloud
 
 BODY = load_studio_actor()
@@ -377,3 +379,64 @@ def test_frames_that_queue_up_are_updated_with_iterations_behind_and_all_tracked
     process.wait(timeout=20)
     assert [m.frame_id.split(' ')[0] for m in processed] == ['tracking'] * frames
     assert 1 <= int(values['tracked_behind']) <= frames - 2, values
+
+
+def test_under_latency_target_the_tracker_announces_a_decimation_and_sheds_alike(
+    ros_env, tmp_path
+):
+    """The live latency policy: frames that queue up late make the tracker keep one in 2.
+
+    Fed faster than it tracks, it announces the decimation on /memo/decimation ahead of the
+    frames it concerns; from its stamp on, each frame it leaves out is reported shed (contours
+    that still come for it are counted, not tracked) and every kept one is tracked.
+    """
+    frames = 48
+    scenario, q, studio = _studio_arm(tmp_path, frames)
+    process = _start_tracker(
+        ros_env,
+        studio,
+        'wait_for_assignment:=false',
+        'latency_target:=0.001',  # every frame that queues is late
+        'min_kept_rate:=15.0',  # one in 2 at most
+        'max_lag:=3600.0',
+    )
+    cams, tables = _camera_contours(scenario, q)
+    with ros_session('decimation_feeder', ros_env.domain_id) as (node, executor):
+        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
+        infos = {
+            c: node.create_publisher(CameraInfo, f'/{c}/camera_info', QoSProfile(depth=100))
+            for c in cams
+        }
+        announced: list[Header] = []
+        node.create_subscription(Header, DECIMATION_TOPIC, announced.append, DECIMATION_QOS)
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        time.sleep(0.5)
+        for k in range(frames):
+            for cam in cams:
+                info = CameraInfo()
+                info.header.stamp = stamp_from_ns(T0 + k * DT)
+                infos[cam].publish(info)
+                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            executor.spin_once(timeout_sec=0.005)  # faster than it tracks: frames queue up
+        spin_until(lambda: len(processed) >= frames, timeout=60.0)
+        spin_until(lambda: values.get('dropped.shed') is not None, timeout=5.0)
+    process.terminate()
+    process.wait(timeout=20)
+    assert len(announced) == 1, [m.frame_id for m in announced]
+    decimation = Decimation.from_text(
+        announced[0].stamp.sec * 10**9 + announced[0].stamp.nanosec, announced[0].frame_id
+    )
+    assert decimation.every == 2 and decimation.period_ns == DT
+    reported = {m.stamp.sec * 10**9 + m.stamp.nanosec: m.frame_id.split(' ')[0] for m in processed}
+    stamps = [T0 + k * DT for k in range(frames)]
+    assert sorted(reported) == stamps
+    first = next(k for k, s in enumerate(stamps) if s >= decimation.from_ns)
+    assert 5 <= first < frames - 6, first
+    expected = [
+        'tracking' if k < first or decimation.keeps(s) else 'shed' for k, s in enumerate(stamps)
+    ]
+    assert [reported[s] for s in stamps] == expected
+    assert int(values['dropped.shed']) == expected.count('shed'), values
+    # the contours of a shed frame (all but one, if the first message of the frame was one)
+    assert int(values['shed_messages']) >= (len(cams) - 1) * expected.count('shed'), values
+    assert values['decimation'] == '2'

@@ -37,11 +37,13 @@ from memo_ros.core.formats.background_file import (
     load_background,
     save_background,
 )
+from memo_ros.core.latency.decimation import DecimationSchedule
 from memo_ros.core.vision.background import BackgroundModel, background_from_frames
 from memo_ros.core.vision.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.vision.encodings import ImageFormatError
 from memo_ros.core.vision.tracked_region import body_region, tracked_person
 from memo_ros.ros.body_messages import MARKERS_TOPIC, tracked_body_from_markers
+from memo_ros.ros.decimation_messages import follow_decimation
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.images import image_message_to_frame, image_message_to_grey
 from memo_ros.ros.lost_frames import LostFrameCounter
@@ -345,6 +347,8 @@ class ContourNode(Node):
         self.pipeline = self._new_pipeline()
         self.camera_info: CameraInfo | None = None
         self.last_stamp_ns: int | None = None
+        self.last_kept_ns: int | None = None  # the newest image not shed (roi_wait's previous)
+        self.schedule = DecimationSchedule()  # the frames the graph keeps (the tracker's word)
         self.backward_stamps: list[int] = []  # the current run of images older than the newest
         self.markers: tuple[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = (
             None
@@ -379,6 +383,7 @@ class ContourNode(Node):
             info_qos,
         )
         self.pub_contours = self.create_publisher(PointCloud2, 'contours', 10)
+        follow_decimation(self, self.schedule, self.health)
         # the last images of a burst have no newer image to show they were lost
         self.create_timer(
             IMAGE_LOST_AFTER_S / 2, self.health.guard(self._count_expired, 'lost image timer')
@@ -649,6 +654,9 @@ class ContourNode(Node):
             self.health.note('late_images', 'an image came after it was counted lost: ignored')
             return
         self.health.count('frames_in')
+        if not backward and stamp != self.last_stamp_ns and not self.schedule.keeps(stamp):
+            self._shed(stamp)
+            return
         if (
             self.pending is not None
         ):  # another image: the waiting one goes first, with what there is
@@ -676,6 +684,8 @@ class ContourNode(Node):
             self.backward_stamps = []
             self.pipeline = self._new_pipeline()
             self.markers = None
+            self.schedule.clear()
+            self.last_kept_ns = None
             for _ in self.lost.reset():
                 self._count_lost()
             self._saved_background = None
@@ -708,7 +718,8 @@ class ContourNode(Node):
             self._count_lost()
         self._count_missing()
         self.backward_stamps.clear()
-        previous_ns, self.last_stamp_ns = self.last_stamp_ns, stamp
+        self.last_stamp_ns = stamp
+        previous_ns, self.last_kept_ns = self.last_kept_ns, stamp
         if self._waits_for_markers(previous_ns):
             self.pending = PendingImage(
                 msg,
@@ -729,6 +740,19 @@ class ContourNode(Node):
             )
             return
         self._segment(msg, image, stamp)
+
+    def _shed(self, stamp: int) -> None:
+        """Leave out an image the graph's decimation does not keep: counted, not segmented."""
+        for _ in self.lost.received(stamp):
+            self._count_lost()
+        self._count_missing()
+        self.backward_stamps.clear()
+        self.last_stamp_ns = stamp
+        self.health.drop(
+            'shed',
+            f'the tracker keeps one frame in {self.schedule.at(stamp).every} under load '
+            '(/memo/decimation): image not segmented',
+        )
 
     def _segment(self, msg: Image, image: np.ndarray, stamp: int) -> None:
         """Segment one accepted image within the tracked region and publish its contours."""

@@ -29,6 +29,7 @@ from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import PART_NAMES
 from memo_ros.core.geometry.camera import intrinsics_problem
+from memo_ros.core.latency.decimation import DecimationSchedule
 from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.motion import (
     EXTRA_STATE_NAMES,
@@ -44,6 +45,7 @@ from memo_ros.core.multiview.selection import (
     SelectionSettings,
 )
 from memo_ros.ros.assignment_messages import assignment_to_message
+from memo_ros.ros.decimation_messages import follow_decimation
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
@@ -196,6 +198,7 @@ class SelectorNode(Node):
         )
         self.info_stamp: dict[str, int] = {}
         self.last_frame_ns: int | None = None
+        self.schedule = DecimationSchedule()  # the frames the graph keeps (the tracker's word)
         self.was_alive = dict.fromkeys(self.names, True)
         self.frame_ms: deque[float] = deque(maxlen=100)
         reliable = QoSProfile(
@@ -227,6 +230,7 @@ class SelectorNode(Node):
             reliable,
         )
         self.publisher = self.create_publisher(DiagnosticArray, ASSIGNMENT_TOPIC, reliable)
+        follow_decimation(self, self.schedule, self.health)
         self.health.set('cameras', ','.join(self.names))
         self.get_logger().info(
             f'studio {self.studio.name}: cameras {", ".join(self.names)}; '
@@ -365,6 +369,13 @@ class SelectorNode(Node):
                 )
             return  # equal: this frame is under way
         self.last_frame_ns = stamp
+        if not self.schedule.keeps(stamp):
+            self.health.drop(
+                'shed',
+                f'the tracker keeps one frame in {self.schedule.at(stamp).every} under load '
+                '(/memo/decimation): no assignment',
+            )
+            return
         self._frame(stamp)
 
     def _reset(self, why: str) -> None:
@@ -372,6 +383,7 @@ class SelectorNode(Node):
         self.posteriors.clear()
         self.info_stamp.clear()
         self.last_frame_ns = None
+        self.schedule.clear()
         self.health.note('time_jump_resets', why)
 
     # ----------------------------------------------------------------- frame

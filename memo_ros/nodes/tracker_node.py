@@ -27,6 +27,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from memo_ros.core.latency.decimation import Decimation, DecimationSchedule
+from memo_ros.core.latency.governor import FrameLoad, GovernorSettings, LatencyGovernor
 from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
@@ -53,6 +55,11 @@ from memo_ros.ros.body_messages import (
     pose_array_message,
     processed_message,
     root_pose_message,
+)
+from memo_ros.ros.decimation_messages import (
+    DECIMATION_QOS,
+    DECIMATION_TOPIC,
+    decimation_message,
 )
 from memo_ros.ros.health import INTERNAL_ERROR, NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
@@ -379,6 +386,29 @@ PARAMS: tuple[Param, ...] = (
         'with none newer (counted searches_deferred); false runs each when due (memo-ros launch '
         '--reliable-images, and so memo-ros replay, sets false)',
     ),
+    Param(
+        'latency_target',
+        0.08,
+        'the live latency policy for the whole graph: while the last 5 frames were each later '
+        'than this (from the first message of the frame to tracked) and each queued (a newer '
+        "frame's contours waited meanwhile, or a camera's contours were missing: a contour node "
+        'behind loses images), the tracker announces on /memo/decimation that every node keeps '
+        'one frame in 2, 3, ... (down to min_kept_rate), the same frames in every node, others '
+        'counted shed; after 3 s with nothing queued, if the tracker would stay under 70 % busy, '
+        'one more frame in each run is kept again. 0 processes every frame (memo-ros launch '
+        '--reliable-images, and so memo-ros replay, sets 0), s',
+        0.0,
+        10.0,
+    ),
+    Param(
+        'min_kept_rate',
+        20.0,
+        'the live latency policy: the graph never keeps fewer frames a second than this under '
+        'overload (the motion between two kept frames grows with the decimation: at 60 Hz one in '
+        '3 at most, at 30 Hz none), Hz',
+        0.1,
+        1000.0,
+    ),
 )
 SET_POSE_TTL_S = 2.0  # wall time an accepted set_pose waits for the frame that starts from it
 ANNOUNCED_WAIT_S = 2.0  # how long a frame only camera_info announced waits (contour_node's loss)
@@ -444,6 +474,11 @@ def tracker_settings(p: dict) -> TrackerSettings:
     )
 
 
+def governor_settings(p: dict) -> GovernorSettings:
+    """GovernorSettings from the node's parameter values."""
+    return GovernorSettings(latency_target_s=p['latency_target'], min_rate_hz=p['min_kept_rate'])
+
+
 class TrackerNode(Node):
     """Joins contours and assignments per frame and runs the articulated EKF.
 
@@ -501,6 +536,11 @@ class TrackerNode(Node):
         )  # joined frames in a row without it
         self.late_stamps: dict[int, None] = {}  # insertion-ordered sets of recent stamps
         self.done_stamps: dict[int, None] = {}
+        self.shed_stamps: dict[int, None] = {}
+        self.started_track = False  # the frame being tracked (re)started the track
+        # the live latency policy: the frames the whole graph keeps (latency_target)
+        self.schedule = DecimationSchedule()
+        self.governor = LatencyGovernor(governor_settings(self.params))
         # deep queues: a burst of frames (bag replay, a slow update) waits instead of being
         # overwritten
         reliable = QoSProfile(
@@ -546,6 +586,7 @@ class TrackerNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, '/memo/markers', 10)
         self.pub_root = self.create_publisher(PoseWithCovarianceStamped, '/memo/root_pose', 10)
         self.pub_processed = self.create_publisher(Header, PROCESSED_TOPIC, PROCESSED_DEPTH)
+        self.pub_decimation = self.create_publisher(Header, DECIMATION_TOPIC, DECIMATION_QOS)
         self.create_service(
             Trigger, '~/reset', self.health.guard(self._on_reset, 'reset service', service=True)
         )
@@ -586,6 +627,8 @@ class TrackerNode(Node):
     def _on_parameters_set(self) -> None:
         settings = tracker_settings(self.params)
         self._command(lambda: self.tracker.apply_settings(settings))
+        with self.lock:
+            self.governor.settings = governor_settings(self.params)
         self.health.note('reconfigured', 'parameters changed: tracker settings updated')
 
     def _on_reset(self, request, response):
@@ -638,6 +681,9 @@ class TrackerNode(Node):
         None (counted) when it is late; a jump back in time resets the filter. ``announced``: the
         message is only a camera_info saying the frame exists, which starts no join wait.
         """
+        if stamp in self.shed_stamps:
+            self.health.count('shed_messages')
+            return None
         last = self.last_processed_ns
         if last is not None and stamp <= last:
             if last - stamp > self.params['time_jump'] * 1e9:
@@ -647,6 +693,11 @@ class TrackerNode(Node):
                 self.newest_contours_ns.clear()
                 self.done_stamps.clear()
                 self.late_stamps.clear()
+                self.shed_stamps.clear()
+                if self.schedule.changes:  # a new timeline: every node keeps every frame again
+                    self.schedule.clear()
+                    self.governor = LatencyGovernor(governor_settings(self.params))
+                    self._announce(Decimation())
                 self.commands.append(lambda: self.tracker.reset())
                 self.health.note(
                     'time_jump_resets', 'stamps jumped backwards (bag loop?): filter reset'
@@ -656,6 +707,10 @@ class TrackerNode(Node):
                 return None
         if self.first_stamp_ns is None:
             self.first_stamp_ns = stamp
+        self.governor.heard(stamp)
+        if not self.schedule.keeps(stamp):
+            self._shed(stamp)
+            return None
         now = time.monotonic()
         frame = self.pending.get(stamp)
         if frame is None:
@@ -672,7 +727,7 @@ class TrackerNode(Node):
         """
         stamp = stamp_to_ns(msg.header.stamp)
         with self.lock:
-            if stamp in self.done_stamps or stamp in self.late_stamps:
+            if stamp in self.done_stamps or stamp in self.late_stamps or stamp in self.shed_stamps:
                 return  # a frame already accounted for: its camera_info is no late message
             self._frame_for(stamp, 'camera_info', announced=True)
 
@@ -850,6 +905,52 @@ class TrackerNode(Node):
         self.gap_since_tracked = True
         self.pub_processed.publish(processed_message(stamp, 'skipped'))
 
+    def _shed(self, stamp: int) -> None:
+        """Account for a frame the graph's decimation leaves out (call under the lock)."""
+        self.shed_stamps[stamp] = None
+        if len(self.shed_stamps) > LATE_STAMPS_KEPT:
+            del self.shed_stamps[next(iter(self.shed_stamps))]
+        every = self.schedule.at(stamp).every
+        self.health.drop(
+            'shed',
+            f'the graph is over latency_target = {self.params["latency_target"]:g} s: it keeps '
+            f'one frame in {every} (/memo/decimation)',
+        )
+        self.pub_processed.publish(processed_message(stamp, 'shed'))
+
+    def _announce(self, decimation: Decimation) -> None:
+        """Tell every node which frames to keep from ``decimation.from_ns`` on."""
+        self.pub_decimation.publish(decimation_message(decimation))
+        self.health.set('decimation', decimation.every)
+        self.health.note(
+            'decimation_changes',
+            f'latency policy: one frame in {decimation.every} kept from stamp '
+            f'{decimation.from_ns * 1e-9:.3f} on',
+        )
+
+    def _govern(
+        self, stamp: int, frame: PendingFrame, missing: list[str], began: float, started: bool
+    ) -> None:
+        """Feed a processed frame's load to the governor and announce what it decides.
+
+        It queued when a newer kept frame waited meanwhile, or when it lacked an expected
+        camera's contours (a contour node behind loses images); the frame that (re)started the
+        track does not count (a start is slow).
+        """
+        now = time.monotonic()
+        with self.lock:
+            if not started:
+                waited = any(
+                    s > stamp and f.first_wall is not None for s, f in self.pending.items()
+                )
+                queued = bool(missing) or waited
+                load = FrameLoad(now - frame.announced_wall, now - began, queued)
+                self.governor.processed(load, now)
+            decimation = self.governor.decide(now)
+            if decimation is not None:
+                self.schedule.add(decimation)
+                self._announce(decimation)
+
     def _done(self, stamp: int) -> None:
         self.last_processed_ns = (
             stamp if self.last_processed_ns is None else max(stamp, self.last_processed_ns)
@@ -901,6 +1002,8 @@ class TrackerNode(Node):
             stamp, frame, missing = job
             # on /diagnostics while a frame takes long (a start): a paced replay waits for it
             self.health.set('working_on', stamp)
+            self.started_track = False
+            began = time.monotonic()
             try:
                 outcome = self._track(stamp, frame, missing)
             except Exception as exc:  # noqa: BLE001 - counted, the node goes on
@@ -912,6 +1015,7 @@ class TrackerNode(Node):
             finally:
                 self.health.set('working_on', '')
             self.gap_since_tracked = not outcome.startswith(TRACKING)
+            self._govern(stamp, frame, missing, began, self.started_track)
             self.pub_processed.publish(processed_message(stamp, outcome))
 
     def _shutting_down(self) -> bool:
@@ -989,6 +1093,9 @@ class TrackerNode(Node):
         self.health.set('searches_deferred', result.searches_deferred)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
+            self.started_track = True
+            with self.lock:
+                self.governor.restart()  # the backlog of a start says nothing about the load
         if result.status == LOST:
             self.health.drop(
                 'tracking_lost',

@@ -57,6 +57,7 @@ REPLAY_TRACKER_PARAMS = {
     # replay slower, not different
     'iterations_behind': 20,
     'defer_searches': False,
+    'latency_target': 0.0,  # and no frame shed under load
 }
 
 

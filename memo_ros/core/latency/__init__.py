@@ -1,0 +1,1 @@
+"""The live graph's latency policy: which frames every node sheds under load, and when."""
