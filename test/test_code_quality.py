@@ -20,6 +20,7 @@ CORE_ORDER = {  # a core sub-package may import only the sub-packages listed for
     'formats': {'geometry'},
     'simulation': {'geometry', 'walking'},
     'evaluation': {'geometry', 'vision', 'formats'},
+    'latency': set(),
 }
 ROS_PACKAGES = ('rclpy', 'rosidl_runtime_py', 'rosbags')
 MESSAGE_SUFFIX = '_msgs'
