@@ -387,6 +387,17 @@ PARAMS: tuple[Param, ...] = (
         '--reliable-images, and so memo-ros replay, sets false)',
     ),
     Param(
+        'reacquire_gap',
+        0.25,
+        'a frame this long after the last tracked one (stamp time: the tracker skipped frames '
+        'behind a slow start or a search) starts from the last pose moved on the floor as far '
+        "as the silhouettes' centre moved, when that fits its contours better than the "
+        'constant-velocity prediction, and is updated with 5 relinearisations (counted '
+        'reacquisitions); 0 keeps the prediction and the usual iterations, s',
+        0.0,
+        3600.0,
+    ),
+    Param(
         'latency_target',
         0.08,
         'the live latency policy for the whole graph: while the last 5 frames were each later '
@@ -466,6 +477,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         limb_recheck_gain=p['limb_recheck_gain'],
         hold_sigma_px=p['hold_sigma_px'],
         hold_hull=p['hold_hull'],
+        reacquire_gap=p['reacquire_gap'],
         process_noise=ProcessNoise(
             p['process_noise_translation'],
             p['process_noise_root_rotation'],
@@ -1091,6 +1103,7 @@ class TrackerNode(Node):
         self.health.set('recoveries', result.recoveries)
         self.health.set('limbs_found', result.limbs_found)
         self.health.set('searches_deferred', result.searches_deferred)
+        self.health.set('reacquisitions', self.tracker.reacquisitions)
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
             self.started_track = True

@@ -137,6 +137,11 @@ class TrackerSettings:
         5.0  # px^2 per sample the re-found limb's outline must fit better by
     )
     recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
+    # a frame this long (s) after the last tracked one (a live tracker skipped frames behind a
+    # slow start or a search) starts from the last pose moved with the silhouettes' centre when
+    # that fits its contours better than the constant-velocity guess, and is updated with
+    # recover_iterations; 0: always the guess, with the usual iterations
+    reacquire_gap: float = 0.25
     recover_memory: float = 0.9  # per-frame factor of the running usual misfit
     hold_sigma_px: float = 2.0  # noise of the silhouette's hold on a node outside it (0: off)
     hold_hull: bool = True  # hold within each camera's convex hull of its contours, not the
@@ -204,6 +209,7 @@ class ArticulatedTracker:
         self.recoveries = 0
         self.limbs_found = 0  # limbs a start or a recheck moved (_search_limbs)
         self.searches_deferred = 0  # searches put off because may_search said no (step)
+        self.reacquisitions = 0  # frames after a gap started from the moved last pose (step)
         self._may_search: Callable[[], bool] = _always
         self.limb_postures = limb_postures(body)
         self._fields_of: dict | None = None  # the contours the silhouette fields were made from
@@ -221,6 +227,7 @@ class ArticulatedTracker:
         """
         self.status = WAITING
         self.stamp_ns: int | None = None
+        self.centre: np.ndarray | None = None  # the silhouettes' centre at the last frame
         self.bad_frames = 0
         self.usual_cost: float | None = None  # running misfit per sample of the track (_recover)
         self.pending_pose: np.ndarray | None = (
@@ -314,7 +321,11 @@ class ArticulatedTracker:
             if self.stamp_ns is None:  # never: a tracked frame sets it
                 raise RuntimeError('tracking without a previous frame')
             dt = (stamp_ns - self.stamp_ns) * 1e-9
+            last_pose = self.ekf.q.copy()
             self.ekf.predict(dt)
+            if 0 < self.settings.reacquire_gap < dt:
+                self._reacquire(last_pose, contours, rays, masks, samples, dt)
+                iterations = max(iterations or 0, self.settings.recover_iterations)
         measure = self._measurement_function(contours, rays, masks)
         last: list[Measurements] = []  # the update's last linearisation (counts: _last_counts)
 
@@ -366,6 +377,7 @@ class ArticulatedTracker:
                 f'(NIS {report.nis:.1f}, {report.used}/{samples} samples used)',
             )
         self.status = TRACKING
+        self.centre = self._centre(contours)
         rotations, origins = self.body.forward_kinematics(self.ekf.q)
         return FrameResult(
             stamp_ns,
@@ -390,6 +402,35 @@ class ArticulatedTracker:
             self.limbs_found,
             self.searches_deferred,
         )
+
+    def _centre(self, contours: dict[str, np.ndarray]) -> np.ndarray | None:
+        """Return where the rays through each camera's contour centroid meet (None: < 2)."""
+        return triangulate_centre([self.cameras[c] for c in contours], list(contours.values()))
+
+    def _reacquire(
+        self, last_pose: np.ndarray, contours, rays, masks, samples: int, dt: float
+    ) -> None:
+        """After a gap, start from the last pose moved with the silhouettes if it fits better.
+
+        Over a gap of a quarter second or more the constant-velocity prediction (eq. 10) may be
+        worth little: a velocity from before a slow start is zero while the person walked on,
+        and one from a swinging leg carries it through its range. The other start is the last
+        pose, its root moved on the floor as far as the centre of the silhouettes moved. The one
+        that fits the frame's contours better is kept (a waving arm's prediction often wins).
+        """
+        centre = self._centre(contours)
+        if centre is None or self.centre is None:
+            return
+        q = last_pose.copy()
+        shift = centre[:2] - self.centre[:2]
+        q[:2] += shift
+        if self._fit_cost(q, contours, rays, masks, samples) < self._fit_cost(
+            self.ekf.q, contours, rays, masks, samples
+        ):
+            v = np.zeros_like(self.ekf.v)
+            v[:2] = shift / dt
+            self.ekf.q, self.ekf.v = q, v
+            self.reacquisitions += 1
 
     def _no_body(self, stamp_ns: int, start: float) -> FrameResult:
         """No contour from any camera: predict while the track is young, then lose it."""
