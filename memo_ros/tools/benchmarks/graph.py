@@ -331,6 +331,16 @@ def _drain(executor, probe: Probe, restamper: Restamper) -> None:
         executor.spin_once(timeout_sec=0.05)
 
 
+def _recorded_rate(bag: Path, camera: str, default_hz: float) -> tuple[int, float]:
+    """Return the images of ``camera`` in ``bag`` and the rate they were recorded at."""
+    from memo_ros.tools.bag.info import bag_summary
+
+    summary = bag_summary(bag)
+    images = {t.topic: t.count for t in summary.topics}.get(f'/{camera}/image_raw', 0)
+    seconds = summary.duration_ns * 1e-9
+    return images, (images - 1) / seconds if images > 1 and seconds > 0 else default_hz
+
+
 def run_graph_benchmark(
     rates=RATES,
     frames: int = FRAMES,
@@ -347,7 +357,6 @@ def run_graph_benchmark(
     from memo_ros.core.formats.studio import Studio
     from memo_ros.core.simulation.imaging import ImagingOptions
     from memo_ros.ros.dds import player_segment, player_segment_bytes
-    from memo_ros.tools.bag.info import bag_summary
     from memo_ros.tools.launch import graph_commands
     from memo_ros.tools.simulate import simulate
 
@@ -357,35 +366,40 @@ def run_graph_benchmark(
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED='1')
     with tempfile.TemporaryDirectory(prefix='memo_ros_bench_graph_') as tmp:
         simulated = bag is None
-        if simulated:
-            bag = simulate(
+        # a simulated bag is rendered at the rate it is played, so the person moves as fast as
+        # before a camera of that rate (a 30 Hz bag played at 90 Hz moves three times as fast)
+        bags = [
+            simulate(
                 SCENARIO,
-                Path(tmp) / 'bag',
+                Path(tmp) / f'bag_{k}',
                 frames=frames,
+                frame_rate=rate,
                 width=SIZE[0],
                 height=SIZE[1],
                 options=ImagingOptions(),
                 rig=rig,
             ).bag
-        studio_file = bag.with_name(bag.name + '.yaml')
+            if simulated
+            else bag
+            for k, rate in enumerate(rates)
+        ]
+        studio_file = bags[0].with_name(bags[0].name + '.yaml')
         studio = Studio.load(studio_file)
         cameras = studio.camera_names
         segment = player_segment_bytes(studio.cameras)
-        summary = bag_summary(bag)
-        images = {t.topic: t.count for t in summary.topics}.get(f'/{cameras[0]}/image_raw', 0)
-        seconds = summary.duration_ns * 1e-9
-        bag_hz = (images - 1) / seconds if images > 1 and seconds > 0 else studio.frame_rate
         expected = len(graph_commands(studio, studio_file))
+        recorded = [_recorded_rate(b, cameras[0], studio.frame_rate) for b in bags]
+        images, bag_hz = recorded[0]
         # only for this process's participants: the nodes got ``env`` from before
         with player_segment(segment, tmp, localhost_only=True) as own_profile:
             rows = [
                 run_rate(
-                    bag,
-                    studio_file,
+                    bags[k],
+                    bags[k].with_name(bags[k].name + '.yaml'),
                     cameras,
                     expected,
                     rate,
-                    bag_hz,
+                    recorded[k][1],
                     warmup,
                     domain_id,
                     env,
@@ -394,6 +408,8 @@ def run_graph_benchmark(
                 )
                 for k, rate in enumerate(rates)
             ]
+            for row, (_, hz) in zip(rows, recorded):
+                row['bag_hz'] = hz
         first = cameras[0]
         size = next((f'{c.width}x{c.height}' for c in studio.cameras if c.name == first), '?')
     return {

@@ -260,18 +260,21 @@ def print_graph_benchmark(report: dict) -> None:
     Latencies, rates, drops; then per process CPU and memory; then the nodes' drop counters.
     """
     rows = report['rates']
+    recorded = (
+        'each rate its own bag, simulated at that rate (the person moves as before such a camera)'
+        if report['bag'] == 'simulated'
+        else f'recorded at {report["bag_hz"]:.0f} Hz, played faster or slower'
+    )
     print(
         f'graph: {report["scenario"]} ({report["bag"]}), {len(report["cameras"])} cameras '
-        f'{report["size"]}, {report["bag_frames"]} frames recorded at {report["bag_hz"]:.0f} Hz; '
+        f'{report["size"]}, {report["bag_frames"]} frames, {recorded}; '
         '`memo-ros launch STUDIO`, best-effort images (as from live cameras); ROS_DOMAIN_ID '
         f'{report["domain_id"]}'
     )
     print(
-        'every frame restamped to the wall clock when it goes out; latency = output publication '
-        '(DDS source '
-        f'timestamp) - stamp; the first {report["warmup_frames"]} frames are warm-up (background '
-        'learning, '
-        f'tracker start), not counted'
+        'every frame restamped to the wall clock when its first image goes out; latency = output '
+        f'publication (DDS source timestamp) - stamp; the first {report["warmup_frames"]} frames '
+        'are warm-up (background learning, tracker start), not counted'
     )
     if report.get('player_shm_segment_mb'):
         print(
