@@ -43,7 +43,7 @@ from memo_ros.core.vision.contours import ContourPipeline, PipelineSettings
 from memo_ros.core.vision.encodings import ImageFormatError
 from memo_ros.core.vision.tracked_region import body_region, tracked_person
 from memo_ros.ros.body_messages import MARKERS_TOPIC, tracked_body_from_markers
-from memo_ros.ros.decimation_messages import follow_decimation
+from memo_ros.ros.decimation_messages import count_shed, follow_decimation
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.images import image_message_to_frame, image_message_to_grey
 from memo_ros.ros.lost_frames import LostFrameCounter
@@ -748,11 +748,7 @@ class ContourNode(Node):
         self._count_missing()
         self.backward_stamps.clear()
         self.last_stamp_ns = stamp
-        self.health.drop(
-            'shed',
-            f'the tracker keeps one frame in {self.schedule.at(stamp).every} under load '
-            '(/memo/decimation): image not segmented',
-        )
+        count_shed(self.health, self.schedule, stamp, 'image not segmented')
 
     def _segment(self, msg: Image, image: np.ndarray, stamp: int) -> None:
         """Segment one accepted image within the tracked region and publish its contours."""

@@ -45,7 +45,7 @@ from memo_ros.core.multiview.selection import (
     SelectionSettings,
 )
 from memo_ros.ros.assignment_messages import assignment_to_message
-from memo_ros.ros.decimation_messages import follow_decimation
+from memo_ros.ros.decimation_messages import count_shed, follow_decimation
 from memo_ros.ros.health import NodeHealth
 from memo_ros.ros.messages import stamp_to_ns
 from memo_ros.ros.node_main import run_node
@@ -370,11 +370,7 @@ class SelectorNode(Node):
             return  # equal: this frame is under way
         self.last_frame_ns = stamp
         if not self.schedule.keeps(stamp):
-            self.health.drop(
-                'shed',
-                f'the tracker keeps one frame in {self.schedule.at(stamp).every} under load '
-                '(/memo/decimation): no assignment',
-            )
+            count_shed(self.health, self.schedule, stamp, 'no assignment')
             return
         self._frame(stamp)
 

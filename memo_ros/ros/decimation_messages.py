@@ -25,6 +25,15 @@ def decimation_message(decimation: Decimation) -> Header:
     return Header(stamp=stamp_from_ns(decimation.from_ns), frame_id=decimation.to_text())
 
 
+def count_shed(health, schedule: DecimationSchedule, stamp_ns: int, consequence: str) -> None:
+    """Count a frame the announced decimation leaves out (``dropped.shed``), with its log line."""
+    health.drop(
+        'shed',
+        f'the tracker keeps one frame in {schedule.at(stamp_ns).every} under load '
+        f'({DECIMATION_TOPIC}): {consequence}',
+    )
+
+
 def follow_decimation(node: Node, schedule: DecimationSchedule, health) -> None:
     """Subscribe ``node`` to the announcements; each goes into ``schedule``.
 

@@ -377,7 +377,8 @@ class ArticulatedTracker:
                 f'(NIS {report.nis:.1f}, {report.used}/{samples} samples used)',
             )
         self.status = TRACKING
-        self.centre = self._centre(contours)
+        if self.settings.reacquire_gap > 0:  # only a frame after a gap compares with it
+            self.centre = self._centre(contours)
         rotations, origins = self.body.forward_kinematics(self.ekf.q)
         return FrameResult(
             stamp_ns,
