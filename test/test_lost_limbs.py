@@ -150,3 +150,19 @@ def test_a_lost_limb_is_searched_again_through_a_fast_dance():
     both = {'hold_sigma_px': 2.0, 'recover_margin': 1.0}
     run = track_dance('orthogonal', 180.0, size=(320, 240), contours='silhouettes', overrides=both)
     assert run['passed'], run['failures']
+
+
+def test_a_kick_followed_by_the_standing_leg_is_found_with_the_legs_searched_together():
+    """studio-dance at 157 degrees, its first 40 frames through the contour pipeline.
+
+    During the right kick the filter lifts the left leg instead; the search again's starts (the
+    pose and each pair exchanged, refitted) stay with both legs wrong (the side-swap and 378 mm at
+    1 s when measured), and posing both legs together in their canonical postures gets them back.
+    """
+    from memo_ros.tools.benchmarks.dance import track_dance
+
+    without = track_dance('orthogonal', 157.0, frames=40, overrides={'pair_search': 0.0})
+    assert not without['passed']
+    assert any('legs' in f['swapped'] for f in without['failures'])
+    run = track_dance('orthogonal', 157.0, frames=40)
+    assert run['passed'], run['failures']

@@ -10,6 +10,8 @@ scored cheaply, as a truncated chamfer: how far each contour sample lies from th
 node of the body with the limb so posed, plus how far the limb's outline lies outside each
 camera's silhouette.  The filter's own update then refines the most promising, and the tracker
 keeps one only when the full misfit says it fits better (``ArticulatedTracker._search_limbs``).
+A pair of limbs is posed together (:func:`pair_postures`) when the search again for a lost limb
+finds nothing better alone (``ArticulatedTracker._search_pairs``).
 """
 
 from __future__ import annotations
@@ -73,6 +75,9 @@ LIMBS = {  # limb: (ball joint, hinge, coordinates set to zero in a posture, par
 }
 TRUNCATION_PX = 25.0  # a sample's or an outline point's distance counts up to this much
 OUTSIDE_POINTS = 5  # points along each outline line looked up in the silhouette's distance map
+# each limb's best postures combined with the other's when a pair is searched together: a limb's
+# own score ranks its posture low while the other limb, lost, covers its outline
+PAIR_TOP = 6
 
 
 @dataclass(frozen=True)
@@ -122,6 +127,22 @@ def limb_postures(body: Body) -> list[LimbPostures]:
                 np.array([PART_NAMES.index(p) for p in parts]),
             )
         )
+    return out
+
+
+def pair_postures(
+    a: LimbPostures, b: LimbPostures, q: np.ndarray, a_scores: np.ndarray, b_scores: np.ndarray
+) -> np.ndarray:
+    """Return ``q`` (n,) with a pair of limbs posed together, (PAIR_TOP^2, n).
+
+    Every combination of each limb's PAIR_TOP best postures on its own cheap score
+    (``a_scores``, ``b_scores``: :func:`posture_scores` of ``q`` and then each posture).
+    """
+    top_a = np.argsort(a_scores[1:])[:PAIR_TOP]
+    top_b = np.argsort(b_scores[1:])[:PAIR_TOP]
+    out = np.repeat(np.asarray(q, float)[None], len(top_a) * len(top_b), axis=0)
+    out[:, a.index] = np.repeat(a.values[top_a], len(top_b), axis=0)
+    out[:, b.index] = np.tile(b.values[top_b], (len(top_a), 1))
     return out
 
 

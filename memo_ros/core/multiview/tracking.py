@@ -39,7 +39,12 @@ from memo_ros.core.multiview.kinematic_jacobian import (
     normal_jacobian,
     projected_rows,
 )
-from memo_ros.core.multiview.limb_search import LimbPostures, limb_postures, posture_scores
+from memo_ros.core.multiview.limb_search import (
+    LimbPostures,
+    limb_postures,
+    pair_postures,
+    posture_scores,
+)
 from memo_ros.core.multiview.model_nodes import model_nodes
 from memo_ros.core.multiview.motion import (
     ConstantVelocity,
@@ -51,6 +56,7 @@ from memo_ros.core.multiview.travel import PelvisPath, travel_support
 
 WAITING, TRACKING, LOST = 'waiting', 'tracking', 'lost'
 LIMB_REFINE_STARTS = 2  # a limb's best postures on the cheap score refined by the update
+PAIR_REFINE_STARTS = 2  # a pair's (_search_pairs)
 # while tracking, a limb is refined only from a start that already gains this fraction of
 # limb_recheck_gain: one that gains less is the limb where the filter has it (a hanging arm is a
 # canonical posture), and refining it found the filter's own posture again at 2 updates and 2
@@ -137,6 +143,11 @@ class TrackerSettings:
         5.0  # px^2 per sample the re-found limb's outline must fit better by
     )
     recover_iterations: int = 5  # relinearisations of each re-search from a broad prior
+    # a search again that does not bring the misfit back also poses each pair of limbs together
+    # in their canonical postures (a kick followed by the standing leg: _search_pairs), kept if it
+    # fits better by this much (sigma^2 per sample) than the pose and the search's own best: a
+    # pair moved far from the filter's track needs clear evidence; 0: never
+    pair_search: float = 0.5
     # a frame this long (s) after the last tracked one (a live tracker skipped frames behind a
     # slow start or a search) starts from the last pose moved with the silhouettes' centre when
     # that fits its contours better than the constant-velocity guess, and is updated with
@@ -712,6 +723,22 @@ class ArticulatedTracker:
                     best = (trial_cost, trial, M)
                 if best is not None and best[0] < self.usual_cost + s.recover_margin:
                     break  # back to the usual misfit: the other starts are not tried
+            if s.pair_search > 0 and (
+                best is None or best[0] >= self.usual_cost + s.recover_margin
+            ):
+                beaten = cost if best is None else min(cost, best[0])
+                found = self._search_pairs(contours, rays, masks, samples)
+                # one within the margin of the best is refitted as the other starts (the rest of
+                # the body moves too: a squat's pelvis) and kept if it then fits clearly better
+                if found is not None and found[0] < beaten + s.recover_margin:
+                    trial = ArticulatedEKF(self.model)
+                    self._refit(
+                        trial, found[1], contours, rays, masks, iterations=s.recover_iterations
+                    )
+                    trial_cost = self._fit_cost(trial.q, contours, rays, masks, samples)
+                    trial_cost /= max(samples, 1)
+                    if trial_cost < beaten - s.pair_search:
+                        best = (trial_cost, trial, np.eye(self.body.n_coordinates))
             if best is not None:
                 cost, trial, M = best
                 self.ekf.q = trial.q
@@ -720,6 +747,45 @@ class ArticulatedTracker:
                 self.recoveries += 1
         self.usual_cost = s.recover_memory * self.usual_cost + (1 - s.recover_memory) * cost
         self._last_counts = counts
+
+    def _search_pairs(
+        self, contours, rays, masks, samples: int
+    ) -> tuple[float, np.ndarray] | None:
+        """Return the best pose with a pair of limbs found again together, and its misfit/sample.
+
+        A fast kick the filter followed with the standing leg leaves both legs wrong, and neither
+        the pair exchanged (both still bent wrong) nor one leg searched with the other where it is
+        (the wrong leg covers the kick's outline) finds the way out.  Each pair's limbs are posed
+        together in the best few canonical postures of each (limb_search.pair_postures), the
+        pair's best combinations on the cheap score are refined by the update, and the one that
+        fits best on the robust misfit is returned (None: no pair could be posed).
+        """
+        names = list(contours)
+        cams = [self.cameras[c] for c in names]
+        uv = [rays[c].uv for c in names]
+        fields = self._silhouettes(contours)
+        field_list = [fields.get(c) for c in names]
+        q = self.ekf.q
+        limbs = {p.limb: p for p in self.limb_postures}
+        scores = {
+            name: posture_scores(
+                self.body, self.nodes, cams, uv, field_list, np.vstack([q, p.apply(q)]), p.parts
+            )
+            for name, p in limbs.items()
+        }
+        best: tuple[float, np.ndarray] | None = None
+        for kind in ('leg', 'arm'):
+            a, b = limbs[f'{kind}_l'], limbs[f'{kind}_r']
+            poses = pair_postures(a, b, q, scores[a.limb], scores[b.limb])
+            parts = np.concatenate([a.parts, b.parts])
+            cheap = posture_scores(self.body, self.nodes, cams, uv, field_list, poses, parts)
+            index = np.concatenate([a.index, b.index])
+            for start in poses[np.argsort(cheap)[:PAIR_REFINE_STARTS]]:
+                trial = self._refined_limb(start, index, contours, rays, masks)
+                cost = self._fit_cost(trial, contours, rays, masks, samples) / max(samples, 1)
+                if best is None or cost < best[0]:
+                    best = (cost, trial)
+        return best
 
     def _recheck_limbs(self, contours, rays, masks) -> None:
         """Search each limb again every ``limb_recheck`` frames; keep one found to fit better.
