@@ -310,6 +310,17 @@ PARAMS: tuple[Param, ...] = (
         100.0,
     ),
     Param(
+        'pair_search',
+        0.5,
+        "when none of the search again's refits comes back within recover_margin, each pair of "
+        'limbs is also posed together in the best canonical postures of each (a kick the filter '
+        'followed with the standing leg), refined, refitted, and kept when it fits better by this '
+        'misfit (sigma^2 per contour sample) than the pose and every other start (such a frame '
+        'costs about ten usual ones); 0 never',
+        0.0,
+        100.0,
+    ),
+    Param(
         'limb_search',
         0.1,
         'at a start (the studio initial_pose, a restart, the silhouettes), each limb is tried in '
@@ -472,6 +483,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         travel_speed=p['travel_speed'],
         limb_exchange=p['limb_exchange'],
         recover_margin=p['recover_margin'],
+        pair_search=p['pair_search'],
         limb_search=p['limb_search'],
         limb_recheck=p['limb_recheck'],
         limb_recheck_gain=p['limb_recheck_gain'],
