@@ -715,10 +715,7 @@ class ArticulatedTracker:
             starts = [(self.ekf.q, np.eye(self.body.n_coordinates))]
             starts += [self.anatomy.exchange(self.ekf.q, pair) for pair in self.anatomy.limbs]
             for q, M in starts:
-                trial = ArticulatedEKF(self.model)
-                self._refit(trial, q, contours, rays, masks, iterations=s.recover_iterations)
-                trial_cost = self._fit_cost(trial.q, contours, rays, masks, samples)
-                trial_cost /= max(samples, 1)
+                trial, trial_cost = self._recover_start(q, contours, rays, masks, samples)
                 if trial_cost < cost and (best is None or trial_cost < best[0]):
                     best = (trial_cost, trial, M)
                 if best is not None and best[0] < self.usual_cost + s.recover_margin:
@@ -731,12 +728,9 @@ class ArticulatedTracker:
                 # one within the margin of the best is refitted as the other starts (the rest of
                 # the body moves too: a squat's pelvis) and kept if it then fits clearly better
                 if found is not None and found[0] < beaten + s.recover_margin:
-                    trial = ArticulatedEKF(self.model)
-                    self._refit(
-                        trial, found[1], contours, rays, masks, iterations=s.recover_iterations
+                    trial, trial_cost = self._recover_start(
+                        found[1], contours, rays, masks, samples
                     )
-                    trial_cost = self._fit_cost(trial.q, contours, rays, masks, samples)
-                    trial_cost /= max(samples, 1)
                     if trial_cost < beaten - s.pair_search:
                         best = (trial_cost, trial, np.eye(self.body.n_coordinates))
             if best is not None:
@@ -747,6 +741,15 @@ class ArticulatedTracker:
                 self.recoveries += 1
         self.usual_cost = s.recover_memory * self.usual_cost + (1 - s.recover_memory) * cost
         self._last_counts = counts
+
+    def _recover_start(
+        self, q: np.ndarray, contours, rays, masks, samples: int
+    ) -> tuple[ArticulatedEKF, float]:
+        """Return a filter refitted from ``q`` under a broad prior, and its misfit per sample."""
+        trial = ArticulatedEKF(self.model)
+        self._refit(trial, q, contours, rays, masks, iterations=self.settings.recover_iterations)
+        cost = self._fit_cost(trial.q, contours, rays, masks, samples) / max(samples, 1)
+        return trial, cost
 
     def _search_pairs(
         self, contours, rays, masks, samples: int
@@ -760,25 +763,16 @@ class ArticulatedTracker:
         pair's best combinations on the cheap score are refined by the update, and the one that
         fits best on the robust misfit is returned (None: no pair could be posed).
         """
-        names = list(contours)
-        cams = [self.cameras[c] for c in names]
-        uv = [rays[c].uv for c in names]
-        fields = self._silhouettes(contours)
-        field_list = [fields.get(c) for c in names]
+        score = self._posture_scorer(contours, rays)
         q = self.ekf.q
         limbs = {p.limb: p for p in self.limb_postures}
-        scores = {
-            name: posture_scores(
-                self.body, self.nodes, cams, uv, field_list, np.vstack([q, p.apply(q)]), p.parts
-            )
-            for name, p in limbs.items()
-        }
+        scores = {name: score(np.vstack([q, p.apply(q)]), p.parts) for name, p in limbs.items()}
         best: tuple[float, np.ndarray] | None = None
         for kind in ('leg', 'arm'):
             a, b = limbs[f'{kind}_l'], limbs[f'{kind}_r']
             poses = pair_postures(a, b, q, scores[a.limb], scores[b.limb])
             parts = np.concatenate([a.parts, b.parts])
-            cheap = posture_scores(self.body, self.nodes, cams, uv, field_list, poses, parts)
+            cheap = score(poses, parts)
             index = np.concatenate([a.index, b.index])
             for start in poses[np.argsort(cheap)[:PAIR_REFINE_STARTS]]:
                 trial = self._refined_limb(start, index, contours, rays, masks)
@@ -1233,11 +1227,7 @@ class ArticulatedTracker:
         """
         s = self.settings
         samples = sum(len(t) for t in contours.values())
-        names = list(contours)
-        cams = [self.cameras[c] for c in names]
-        uv = [rays[c].uv for c in names]
-        fields = self._silhouettes(contours)  # (the hold's fields, whether or not it holds)
-        field_list = [fields.get(c) for c in names]
+        score = self._posture_scorer(contours, rays)
         # (while tracking, each limb's outline is weighed on the cheap score instead)
         cost = 0.0 if tracking else self._fit_cost(q, contours, rays, masks, samples)
         # the least gain a start must show on the cheap score to be refined
@@ -1248,9 +1238,7 @@ class ArticulatedTracker:
             gains = []
             for postures in left:
                 poses = np.vstack([q, postures.apply(q)])
-                scores = posture_scores(
-                    self.body, self.nodes, cams, uv, field_list, poses, postures.parts
-                )
+                scores = score(poses, postures.parts)
                 order = np.argsort(scores[1:])[:LIMB_REFINE_STARTS] + 1
                 gains.append((scores[0] - scores[order[0]], postures, poses[order]))
             kept = None
@@ -1260,12 +1248,9 @@ class ArticulatedTracker:
                 for start in starts:
                     trial = self._refined_limb(start, postures.index, contours, rays, masks)
                     if tracking:
-                        score = posture_scores(
-                            self.body, self.nodes, cams, uv, field_list, np.vstack([q, trial]),
-                            postures.parts,
-                        )  # fmt: skip
-                        trial_cost = float(score[1])
-                        better = score[0] - score[1] > s.limb_recheck_gain * samples
+                        compared = score(np.vstack([q, trial]), postures.parts)
+                        trial_cost = float(compared[1])
+                        better = compared[0] - compared[1] > s.limb_recheck_gain * samples
                     else:
                         trial_cost = self._fit_cost(trial, contours, rays, masks, samples)
                         better = trial_cost < cost - s.limb_search * samples
@@ -1278,6 +1263,21 @@ class ArticulatedTracker:
             cost, q, done = kept
             left.remove(done)
         return q, len(searched) - len(left)
+
+    def _posture_scorer(self, contours, rays) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        """Return the frame's cheap score of poses (K, n) differing in ``parts`` (posture_scores).
+
+        Against every camera's contour samples and the silhouette fields of the hold (made
+        whether or not it holds).
+        """
+        names = list(contours)
+        cams = [self.cameras[c] for c in names]
+        uv = [rays[c].uv for c in names]
+        fields = self._silhouettes(contours)
+        field_list = [fields.get(c) for c in names]
+        return lambda poses, parts: posture_scores(
+            self.body, self.nodes, cams, uv, field_list, poses, parts
+        )
 
     def _given_start(self, contours, rays, masks) -> tuple[np.ndarray, bool]:
         """Return the start from the given pose, its limbs found, and whether its heading stands.
