@@ -237,6 +237,14 @@ def test_heading_error_and_side_swaps_are_found_in_the_frames_they_happen(tmp_pa
     for pair in ('arms', 'legs'):
         flags = [int(r[header.index(f'side_swap_{pair}')]) for r in rows]
         assert np.flatnonzero(flags).tolist() == list(swapped)
+    # each part's joint error per frame: nothing off but the turned and the exchanged frames
+    hand = np.array([float(r[header.index('joint_mm_hand_l')]) for r in rows])
+    torso = np.array([float(r[header.index('joint_mm_torso')]) for r in rows])
+    assert np.flatnonzero(hand > 1e-3).tolist() == sorted([10, 33, *swapped])
+    assert np.all(torso < 1e-3)  # the root stays where it is when turned about it
+    worst = np.array([float(r[header.index('joint_mm_max')]) for r in rows])
+    parts = np.array([[float(r[header.index(f'joint_mm_{p}')]) for p in PART_NAMES] for r in rows])
+    assert np.allclose(parts.max(axis=1), worst, atol=1e-3)
     plain = evaluate_json(result.bag, result.bag)
     assert plain['heading_err_deg_max'] == 0.0 and plain['frames_side_swap'] == 0
 

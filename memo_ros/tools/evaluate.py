@@ -363,6 +363,7 @@ def _write_per_frame(path: Path, errors: FrameErrors) -> None:
         header.append('heading_err_deg')
     if errors.side_swap is not None:
         header += [f'side_swap_{pair}' for pair in SWAP_PAIRS]
+    header += [f'joint_mm_{part}' for part in PART_NAMES]  # which part misses, and when
     lines = [','.join(header)]
     for k, stamp in enumerate(errors.stamps_ns):
         row = [
@@ -377,6 +378,7 @@ def _write_per_frame(path: Path, errors: FrameErrors) -> None:
             row.append(f'{errors.heading_deg[k]:.3f}')
         if errors.side_swap is not None:
             row += [str(int(v)) for v in errors.side_swap[k]]
+        row += [f'{v:.3f}' for v in errors.joint_mm[k]]
         lines.append(','.join(row))
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
