@@ -15,7 +15,7 @@ tracked.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import time
 
 import numpy as np
@@ -51,6 +51,7 @@ from memo_ros.core.multiview.motion import (
     ProcessNoise,
     coordinate_rates,
 )
+from memo_ros.core.multiview.shoulder_width import ShoulderMeter, with_shoulder_width
 from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fields
 from memo_ros.core.multiview.travel import PelvisPath, travel_support
 
@@ -159,6 +160,9 @@ class TrackerSettings:
     # silhouette itself: a part the segmentation missed inside the person's outline is not pulled
     hold_tolerance_px: float = 2.0  # how far outside the silhouette a node may lie unpulled
     hold_cap_px: float = 4.0  # the largest pull of one node in one iteration, pixels
+    # tracked frames after a start over which the shoulder width is measured (shoulder_width.py),
+    # for a body scaled from a template (a real person's); 0: the body's width is the person's
+    shoulder_frames: int = 0
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
@@ -223,6 +227,17 @@ class ArticulatedTracker:
         self.reacquisitions = 0  # frames after a gap started from the moved last pose (step)
         self._may_search: Callable[[], bool] = _always
         self.limb_postures = limb_postures(body)
+        self.shoulders = (  # the person's shoulder width, measured while tracking
+            ShoulderMeter(
+                body,
+                self.settings.shoulder_frames,
+                lambda b: ArticulatedTracker(
+                    b, cameras, replace(self.settings, shoulder_frames=0)
+                ),
+            )
+            if self.settings.shoulder_frames > 0
+            else None
+        )
         self._fields_of: dict | None = None  # the contours the silhouette fields were made from
         self._fields: dict = {}
         self._holding = True  # the silhouette holds the body (not during the heading search)
@@ -263,6 +278,21 @@ class ArticulatedTracker:
             else np.zeros(len(limb[0]))
             for pair, limb in self.anatomy.limbs.items()
         }
+
+    def change_body(self, body: Body) -> None:
+        """Track on with ``body`` (the same coordinates) from the estimate: a width measured."""
+        self.body = body
+        self.model = ConstantVelocity(body, self.settings.process_noise)
+        self.ekf.model = self.model
+        if self.twin_ekf is not None:
+            self.twin_ekf.model = self.model
+        self.nodes = model_nodes(body, ring_spacing=self.settings.ring_spacing)
+        self.affects = chain_membership(body)
+        self.anatomy = Anatomy(body)
+        self.limit_index = self.anatomy.limit_index
+        self.limit_low = self.anatomy.limit_low
+        self.limit_high = self.anatomy.limit_high
+        self.limb_postures = limb_postures(body)
 
     def apply_settings(self, settings: TrackerSettings) -> None:
         """Apply new noises, gates and limits from the next frame on, keeping the estimate."""
@@ -388,6 +418,8 @@ class ArticulatedTracker:
                 f'(NIS {report.nis:.1f}, {report.used}/{samples} samples used)',
             )
         self.status = TRACKING
+        if self.shoulders is not None and not initialised:
+            self._measure_shoulders(contours)
         if self.settings.reacquire_gap > 0:  # only a frame after a gap compares with it
             self.centre = self._centre(contours)
         rotations, origins = self.body.forward_kinematics(self.ekf.q)
@@ -414,6 +446,17 @@ class ArticulatedTracker:
             self.limbs_found,
             self.searches_deferred,
         )
+
+    def _measure_shoulders(self, contours: dict[str, np.ndarray]) -> None:
+        """Measure the shoulder width in a due frame; once measured, track with that width."""
+        meter = self.shoulders
+        if meter is None or meter.factor is not None:
+            return
+        if meter.due() and self._search_allowed():
+            meter.measure(self.ekf.q, contours)
+        factor = meter.factor if meter.finished() else None
+        if factor is not None and factor != 1.0:
+            self.change_body(with_shoulder_width(meter.body, factor))
 
     def _centre(self, contours: dict[str, np.ndarray]) -> np.ndarray | None:
         """Return where the rays through each camera's contour centroid meet (None: < 2)."""
@@ -490,6 +533,21 @@ class ArticulatedTracker:
         ekf = ArticulatedEKF(self.model)
         self._refit(ekf, np.asarray(q, float), contours, rays, masks)
         return ekf.q.copy()
+
+    def refine(
+        self, q: np.ndarray, contours: dict[str, np.ndarray], iterations: int
+    ) -> np.ndarray:
+        """Return pose ``q`` fitted to one frame's contours from a narrow prior, in the ranges.
+
+        A local fit (the start's ``init_sigma_*``, every part in every camera): where the pose
+        is already about right, unlike :meth:`refit`'s search.
+        """
+        contours, rays = self._frame_rays(contours)
+        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        s = self.settings
+        sigma = np.where(np.arange(len(q)) < 3, s.init_sigma_translation, s.init_sigma_rotation)
+        P = np.diag(np.concatenate([sigma, sigma]) ** 2)
+        return self._refined(q, np.zeros(len(q)), P, contours, rays, masks, iterations).q.copy()
 
     def misfit(self, q: np.ndarray, contours: dict[str, np.ndarray]) -> float:
         """Return pose ``q``'s robust misfit per contour sample (every part in every camera).
