@@ -11,6 +11,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
+import pytest
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, JointState, PointCloud2
 from std_msgs.msg import Header
@@ -21,6 +22,7 @@ from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.latency.decimation import Decimation
 from memo_ros.core.multiview.selection import Assignment
+from memo_ros.core.multiview.shoulder_width import shoulder_width, with_shoulder_width
 from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.body_messages import PROCESSED_TOPIC, stamp_from_ns
@@ -442,3 +444,44 @@ def test_under_latency_target_the_tracker_announces_a_decimation_and_sheds_alike
     # the contours of a shed frame (all but one, if the first message of the frame was one)
     assert int(values['shed_messages']) >= (len(cams) - 1) * expected.count('shed'), values
     assert values['decimation'] == '2'
+
+
+def test_body_source_silhouettes_measures_the_height_then_the_shoulders(ros_env, tmp_path):
+    """A template with shoulders 12 % wider than the person's: the node moves them in.
+
+    body_source silhouettes scales the studio body to the person's height at the start, then
+    measures the shoulder joints over body_shoulder_frames tracked frames and reports both on
+    /diagnostics; every frame after the start is tracked.
+    """
+    frames = 12
+    scenario, q, _ = _studio_arm(tmp_path, frames)
+    template = with_shoulder_width(BODY, 1.12)
+    studio = tmp_path / 'wide.yaml'
+    Studio('wide', scenario.cameras, template, 30.0).save(studio)
+    process = _start_tracker(
+        ros_env,
+        studio,
+        'body_source:=silhouettes',
+        'body_shoulder_frames:=9',
+        'wait_for_assignment:=false',
+        'join_timeout:=0.1',
+    )
+    cams, tables = _camera_contours(scenario, q)
+    with ros_session('body_feeder', ros_env.domain_id) as (node, executor):
+        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        time.sleep(0.5)
+        for k in range(frames):
+            for cam in cams:
+                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            done = len(processed) + 1
+            spin_until(lambda: len(processed) >= done, timeout=60.0)
+        spin_until(lambda: 'body_shoulder_width_m' in values, timeout=10.0)
+    process.terminate()
+    process.wait(timeout=20)
+    assert [m.frame_id for m in processed] == ['tracking'] * frames
+    assert float(values['body_height_m']) == pytest.approx(BODY.standing_height(), abs=0.02)
+    measured = float(values['body_shoulder_width_m'])
+    # the person's 420 mm against the template's 470 at that height, within a factor step
+    assert measured < 0.97 * shoulder_width(template), values
+    assert measured == pytest.approx(shoulder_width(BODY), abs=0.06 * shoulder_width(BODY))

@@ -11,7 +11,7 @@ Services like robot_localization's: ``~/reset`` (std_srvs/Trigger) and the
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import sys
 import threading
 import time
@@ -41,6 +41,7 @@ from memo_ros.core.multiview.motion import (
     coordinates_from_names,
     named_values_problem,
 )
+from memo_ros.core.multiview.shoulder_width import ShoulderMeter, shoulder_width
 from memo_ros.core.multiview.tracking import (
     LOST,
     TRACKING,
@@ -240,6 +241,19 @@ PARAMS: tuple[Param, ...] = (
         'body_source silhouettes: the height is the one at which the start fits the last of '
         "those frames best, refitted from the visual hull's height up to 1.32 times it (a "
         "person in a lunge or a kick at the first frame; about 1 s more); false: the hull's",
+        read_only=True,
+    ),
+    Param(
+        'body_shoulder_frames',
+        30,
+        'body_source silhouettes: tracked frames after the start over which the shoulder '
+        'joints are measured: every 3rd, the pose is refined with them at 0.88 - 1.12 of the '
+        "template's width (about 5 frames' work, deferred like a search while behind), and "
+        "the least of a parabola through the summed misfits replaces the template's width "
+        "when 2 % below it (a narrow-shouldered person's model arms reach the arms in the "
+        "silhouettes); 0: the template's width",
+        0,
+        1000,
         read_only=True,
     ),
     Param(
@@ -542,6 +556,7 @@ class TrackerNode(Node):
         self.body_silhouettes: list | None = (
             [] if self.params['body_source'] == 'silhouettes' else None
         )
+        self.shoulders_reported: ShoulderMeter | None = None  # the meter last reported
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
         # join state and commands, shared by the executor and the tracking thread (under self.lock)
         self.lock = threading.Lock()
@@ -1116,6 +1131,7 @@ class TrackerNode(Node):
         self.health.set('limbs_found', result.limbs_found)
         self.health.set('searches_deferred', result.searches_deferred)
         self.health.set('reacquisitions', self.tracker.reacquisitions)
+        self._report_shoulders()
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
             self.started_track = True
@@ -1138,6 +1154,22 @@ class TrackerNode(Node):
             self.health.count('published_undecided')
             outcome += f' heading_confidence={result.heading_confidence:.3f}'
         return outcome
+
+    def _report_shoulders(self) -> None:
+        """Once the shoulders are measured (body_shoulder_frames): publish and report them."""
+        meter = self.tracker.shoulders
+        if meter is None or meter.factor is None or meter is self.shoulders_reported:
+            return
+        self.shoulders_reported = meter
+        self.body = self.tracker.body  # the markers' body from the next frame on
+        width = shoulder_width(self.body)
+        self.health.set('body_shoulder_width_m', f'{width:.3f}')
+        self.get_logger().info(
+            f'shoulder joints measured over {meter.measured} frames: {1e3 * width:.0f} mm apart '
+            f"(the template's {1e3 * shoulder_width(meter.body):.0f} mm; summed misfits "
+            + ', '.join(f'{1e3 * w:.0f} mm: {m:.2f}' for w, m in zip(meter.widths, meter.sums))
+            + ')'
+        )
 
     def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:
         """body_source silhouettes.
@@ -1166,9 +1198,13 @@ class TrackerNode(Node):
             )
             body, height = scaled_body(self.studio.body, fit.height), fit.height
         self.body = body
-        # the studio's initial pose (use_initial_pose) holds for the measured body too
+        # the studio's initial pose (use_initial_pose) holds for the measured body too; the
+        # shoulders are measured while it tracks
+        settings = replace(
+            tracker_settings(self.params), shoulder_frames=self.params['body_shoulder_frames']
+        )
         self.tracker = ArticulatedTracker(
-            body, self.studio.cameras, tracker_settings(self.params), self.tracker.initial_pose
+            body, self.studio.cameras, settings, self.tracker.initial_pose
         )
         self.body_silhouettes = None
         self.health.set('body_height_m', f'{height:.3f}')

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 import multiprocessing
 import os
 import time
@@ -315,6 +316,7 @@ def track_dance(
     ``start``: given (the true first pose) or silhouettes (no pose given); ``tracker_body``: truth
     (the dancer's body) or measured (:func:`measured_body`).
     """
+    from memo_ros.core.multiview.shoulder_width import shoulder_width
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
     body = body or load_studio_actor()
@@ -335,9 +337,12 @@ def track_dance(
     for k, tables in enumerate(_contour_frames(scenario, body, q_true, contours)):
         if tracker is None:
             model = body
+            tracking = settings
             if tracker_body == 'measured':
                 model, measured_height = measured_body(scenario.cameras, tables, settings)
-            tracker = ArticulatedTracker(model, scenario.cameras, settings, initial_pose=initial)
+                # the width measured over the first tracked second, as tracker_node does it
+                tracking = replace(settings, shoulder_frames=settings.shoulder_frames or 30)
+            tracker = ArticulatedTracker(model, scenario.cameras, tracking, initial_pose=initial)
         started = time.perf_counter()
         result = tracker.step(int(round(times[k] * 1e9)), tables)
         seconds += time.perf_counter() - started
@@ -361,6 +366,9 @@ def track_dance(
             'tracker_seconds': seconds,
             'body_height_m': body.standing_height(),
             'measured_height_m': measured_height,
+            'measured_shoulders_m': (
+                shoulder_width(tracker.body) if tracker and tracker.shoulders else None
+            ),
         },
     )
 
@@ -552,9 +560,12 @@ def print_dance_benchmark(report: dict) -> None:
     if report.get('tracker_body', 'truth') == 'measured':
         heights = [r['measured_height_m'] for r in runs if r.get('measured_height_m')]
         span = f'{min(heights):.3f} - {max(heights):.3f} m' if heights else 'no run'
+        widths = [r['measured_shoulders_m'] for r in runs if r.get('measured_shoulders_m')]
+        apart = f'{1e3 * min(widths):.0f} - {1e3 * max(widths):.0f} mm' if widths else 'no run'
         print(
             f"{dancer}; the tracker's body: the shipped average scaled to the height measured "
-            f"from the first frame's silhouettes ({span})"
+            f"from the first frame's silhouettes ({span}), its shoulder joints measured over "
+            f'the first tracked second ({apart} apart)'
         )
     else:
         print(f"{dancer}; the tracker is given the dancer's body")
