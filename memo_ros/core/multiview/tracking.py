@@ -207,18 +207,11 @@ class ArticulatedTracker:
         settings: TrackerSettings | None = None,
         initial_pose: np.ndarray | None = None,
     ) -> None:
-        self.body = body
         self.cameras = {c.name: c for c in cameras}
         self.settings = settings or TrackerSettings()
         self.initial_pose = None if initial_pose is None else np.asarray(initial_pose, float)
-        self.model = ConstantVelocity(body, self.settings.process_noise)
+        self._use_body(body)
         self.ekf = ArticulatedEKF(self.model)
-        self.nodes = model_nodes(body, ring_spacing=self.settings.ring_spacing)
-        self.affects = chain_membership(body)
-        self.anatomy = Anatomy(body)
-        self.limit_index = self.anatomy.limit_index
-        self.limit_low = self.anatomy.limit_low
-        self.limit_high = self.anatomy.limit_high
         self.twin_swaps = 0
         self.limb_exchanges = 0
         self.recoveries = 0
@@ -226,7 +219,6 @@ class ArticulatedTracker:
         self.searches_deferred = 0  # searches put off because may_search said no (step)
         self.reacquisitions = 0  # frames after a gap started from the moved last pose (step)
         self._may_search: Callable[[], bool] = _always
-        self.limb_postures = limb_postures(body)
         self.shoulders = (  # the person's shoulder width, measured while tracking
             ShoulderMeter(
                 body,
@@ -281,11 +273,15 @@ class ArticulatedTracker:
 
     def change_body(self, body: Body) -> None:
         """Track on with ``body`` (the same coordinates) from the estimate: a width measured."""
-        self.body = body
-        self.model = ConstantVelocity(body, self.settings.process_noise)
+        self._use_body(body)
         self.ekf.model = self.model
         if self.twin_ekf is not None:
             self.twin_ekf.model = self.model
+
+    def _use_body(self, body: Body) -> None:
+        """Set what the body decides: motion model, outline nodes, chains, ranges, postures."""
+        self.body = body
+        self.model = ConstantVelocity(body, self.settings.process_noise)
         self.nodes = model_nodes(body, ring_spacing=self.settings.ring_spacing)
         self.affects = chain_membership(body)
         self.anatomy = Anatomy(body)
