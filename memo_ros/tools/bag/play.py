@@ -85,7 +85,7 @@ class BagPlayer:
 
     def __init__(
         self,
-        node: Node,
+        node: Node | None,
         bag_path: str | Path,
         options: PlayOptions | None = None,
         before_publish: MessageHook | None = None,
@@ -103,6 +103,16 @@ class BagPlayer:
         except BaseException:
             self.reader.close()
             raise
+
+    @classmethod
+    def check(cls, bag_path: str | Path, options: PlayOptions) -> None:
+        """Refuse what playing would refuse, before any ROS session: a bad request fails at once.
+
+        The options, the topics asked for, every message type and each topic's first payload
+        (BagError), as the player's constructor checks them, without creating publishers.
+        """
+        with cls(None, bag_path, options):
+            pass
 
     def _check_options(self) -> None:
         """Refuse options no bag can be played with."""
@@ -161,7 +171,11 @@ class BagPlayer:
                     raise BagError(
                         f'cannot play {conn.topic}: {exc} (leave it out with --topics)'
                     ) from None
-                publisher = self.node.create_publisher(msg_class, topic, qos)
+                publisher = (
+                    None
+                    if self.node is None
+                    else self.node.create_publisher(msg_class, topic, qos)
+                )  # none: only checking (check)
                 by_topic[topic] = (conn.msgtype, publisher)
             self._check_payload(conn)
             publishers[conn.id] = publisher
@@ -293,8 +307,9 @@ class BagPlayer:
 
     def close(self) -> None:
         """Destroy the publishers and close the bag."""
-        for publisher in {id(p): p for p in self.publishers.values()}.values():
-            self.node.destroy_publisher(publisher)
+        if self.node is not None:
+            for publisher in {id(p): p for p in self.publishers.values()}.values():
+                self.node.destroy_publisher(publisher)
         self.publishers = {}
         self.reader.close()
 
@@ -332,6 +347,7 @@ def run_play(args: argparse.Namespace) -> int:
         wait_for_subscribers=args.wait_for_subscribers,
         wait_timeout=args.wait_timeout,
     )
+    BagPlayer.check(args.bag, options)  # a bad request fails before DDS starts
     status = StatusLine(progress_enabled(args))
     # one process publishing every camera's images needs more than Fast DDS's 512 KiB shared-memory
     # segment
