@@ -41,7 +41,11 @@ from memo_ros.core.multiview.motion import (
     coordinates_from_names,
     named_values_problem,
 )
-from memo_ros.core.multiview.shoulder_width import ShoulderMeter, shoulder_width
+from memo_ros.core.multiview.shoulder_width import (
+    MEASURE_FRAMES,
+    ShoulderMeter,
+    shoulder_width,
+)
 from memo_ros.core.multiview.tracking import (
     LOST,
     TRACKING,
@@ -245,7 +249,7 @@ PARAMS: tuple[Param, ...] = (
     ),
     Param(
         'body_shoulder_frames',
-        30,
+        MEASURE_FRAMES,
         'body_source silhouettes: tracked frames after the start over which the shoulder '
         'joints are measured: every 3rd, the pose is refined with them at 0.88 - 1.12 of the '
         "template's width (about 5 frames' work, deferred like a search while behind), and "

@@ -31,6 +31,7 @@ from memo_ros.core.geometry.body import Body
 SHOULDER_FACTORS = (0.88, 0.94, 1.0, 1.06, 1.12)
 # another width must fit this much better than the template's (summed misfit, relative)
 MIN_GAIN = 0.02
+MEASURE_FRAMES = 30  # tracked frames a real person's width is measured over (tracker_node's)
 SHOULDER_STRIDE = 3  # tracked frames between two measurements
 REFINE_ITERATIONS = 3  # local relinearisations of the tracked pose at each width
 SHOULDERS = ('shoulder_l', 'shoulder_r')
@@ -75,12 +76,10 @@ def least_of_parabola(factors: np.ndarray, misfits: np.ndarray, gain: float) -> 
 class PoseFitter(Protocol):
     """What the meter needs of a tracker of one width (ArticulatedTracker)."""
 
-    def refine(self, q: np.ndarray, contours: dict, iterations: int) -> np.ndarray:
-        """Return ``q`` fitted locally to one frame."""
-        ...
-
-    def misfit(self, q: np.ndarray, contours: dict) -> float:
-        """Return ``q``'s misfit per contour sample in one frame."""
+    def local_fit(
+        self, q: np.ndarray, contours: dict, iterations: int
+    ) -> tuple[np.ndarray, float]:
+        """Return ``q`` fitted locally to one frame, and its misfit per contour sample."""
         ...
 
 
@@ -113,9 +112,7 @@ class ShoulderMeter:
             self._fitters = [
                 self.fitter(with_shoulder_width(self.body, f)) for f in SHOULDER_FACTORS
             ]
-        misfits = np.array(
-            [t.misfit(t.refine(q, contours, REFINE_ITERATIONS), contours) for t in self._fitters]
-        )
+        misfits = np.array([t.local_fit(q, contours, REFINE_ITERATIONS)[1] for t in self._fitters])
         if np.all(np.isfinite(misfits)):
             self.sums += misfits
             self.measured += 1

@@ -524,38 +524,45 @@ class ArticulatedTracker:
 
         As a start refits its candidates (``init_iterations``, every part in every camera).
         """
-        contours, rays = self._frame_rays(contours)
-        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        contours, rays, masks = self._whole_frame(contours)
         ekf = ArticulatedEKF(self.model)
         self._refit(ekf, np.asarray(q, float), contours, rays, masks)
         return ekf.q.copy()
 
-    def refine(
+    def local_fit(
         self, q: np.ndarray, contours: dict[str, np.ndarray], iterations: int
-    ) -> np.ndarray:
-        """Return pose ``q`` fitted to one frame's contours from a narrow prior, in the ranges.
+    ) -> tuple[np.ndarray, float]:
+        """Return pose ``q`` fitted to one frame from a narrow prior, and its misfit per sample.
 
-        A local fit (the start's ``init_sigma_*``, every part in every camera): where the pose
-        is already about right, unlike :meth:`refit`'s search.
+        A local fit (the start's ``init_sigma_*``, every part in every camera, in the ranges):
+        where the pose is already about right, unlike :meth:`refit`'s search; the misfit as
+        :meth:`misfit` weighs it, on the same rays and silhouette fields.
         """
-        contours, rays = self._frame_rays(contours)
-        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
+        contours, rays, masks = self._whole_frame(contours)
+        samples = sum(len(t) for t in contours.values())
         s = self.settings
         sigma = np.where(np.arange(len(q)) < 3, s.init_sigma_translation, s.init_sigma_rotation)
         P = np.diag(np.concatenate([sigma, sigma]) ** 2)
-        return self._refined(q, np.zeros(len(q)), P, contours, rays, masks, iterations).q.copy()
+        fitted = self._refined(q, np.zeros(len(q)), P, contours, rays, masks, iterations).q.copy()
+        if not samples:
+            return fitted, float('nan')
+        return fitted, self._fit_cost(fitted, contours, rays, masks, samples) / samples
 
     def misfit(self, q: np.ndarray, contours: dict[str, np.ndarray]) -> float:
         """Return pose ``q``'s robust misfit per contour sample (every part in every camera).
 
         As the start and the twin weigh poses (sigma^2 per sample); NaN without samples.
         """
-        contours, rays = self._frame_rays(contours)
+        contours, rays, masks = self._whole_frame(contours)
         samples = sum(len(t) for t in contours.values())
         if not samples:
             return float('nan')
-        masks = {c: np.ones(len(PART_NAMES), bool) for c in contours}
         return self._fit_cost(q, contours, rays, masks, samples) / samples
+
+    def _whole_frame(self, contours: dict[str, np.ndarray]) -> tuple[dict, dict, dict]:
+        """Return the frame's contours and rays (_frame_rays), and every part in every camera."""
+        contours, rays = self._frame_rays(contours)
+        return contours, rays, {c: np.ones(len(PART_NAMES), bool) for c in contours}
 
     def _frame_rays(self, contours: dict[str, np.ndarray]) -> tuple[dict, dict]:
         """Return the frame's non-empty contours of the rig's cameras, and their samples' rays."""

@@ -316,7 +316,7 @@ def track_dance(
     ``start``: given (the true first pose) or silhouettes (no pose given); ``tracker_body``: truth
     (the dancer's body) or measured (:func:`measured_body`).
     """
-    from memo_ros.core.multiview.shoulder_width import shoulder_width
+    from memo_ros.core.multiview.shoulder_width import MEASURE_FRAMES, shoulder_width
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
     body = body or load_studio_actor()
@@ -341,7 +341,9 @@ def track_dance(
             if tracker_body == 'measured':
                 model, measured_height = measured_body(scenario.cameras, tables, settings)
                 # the width measured over the first tracked second, as tracker_node does it
-                tracking = replace(settings, shoulder_frames=settings.shoulder_frames or 30)
+                tracking = replace(
+                    settings, shoulder_frames=settings.shoulder_frames or MEASURE_FRAMES
+                )
             tracker = ArticulatedTracker(model, scenario.cameras, tracking, initial_pose=initial)
         started = time.perf_counter()
         result = tracker.step(int(round(times[k] * 1e9)), tables)
