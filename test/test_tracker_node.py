@@ -21,8 +21,13 @@ from test_tracking_core import _silhouette_contours
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import load_studio_actor
 from memo_ros.core.latency.decimation import Decimation
+from memo_ros.core.multiview.proportions import (
+    shoulder_width,
+    upper_arm_length,
+    with_shoulder_width,
+    with_upper_arm_length,
+)
 from memo_ros.core.multiview.selection import Assignment
-from memo_ros.core.multiview.shoulder_width import shoulder_width, with_shoulder_width
 from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.ros.assignment_messages import assignment_to_message
 from memo_ros.ros.body_messages import PROCESSED_TOPIC, stamp_from_ns
@@ -446,23 +451,26 @@ def test_under_latency_target_the_tracker_announces_a_decimation_and_sheds_alike
     assert values['decimation'] == '2'
 
 
-def test_body_source_silhouettes_measures_the_height_then_the_shoulders(ros_env, tmp_path):
-    """A template with shoulders 12 % wider than the person's: the node moves them in.
+def test_body_source_silhouettes_measures_the_height_the_shoulders_and_the_upper_arms(
+    ros_env, tmp_path
+):
+    """A template 12 % too wide at the shoulders, with upper arms 12 % too short: both fixed.
 
     body_source silhouettes scales the studio body to the person's height at the start, then
-    measures the shoulder joints over body_shoulder_frames tracked frames and reports both on
-    /diagnostics; every frame after the start is tracked.
+    measures the shoulder joints and then the upper arms, each over body_proportion_frames
+    tracked frames, and reports all three on /diagnostics; every frame after the start is
+    tracked.
     """
-    frames = 12
+    frames = 15
     scenario, q, _ = _studio_arm(tmp_path, frames)
-    template = with_shoulder_width(BODY, 1.12)
-    studio = tmp_path / 'wide.yaml'
-    Studio('wide', scenario.cameras, template, 30.0).save(studio)
+    template = with_upper_arm_length(with_shoulder_width(BODY, 1.12), 0.88)
+    studio = tmp_path / 'misshapen.yaml'
+    Studio('misshapen', scenario.cameras, template, 30.0).save(studio)
     process = _start_tracker(
         ros_env,
         studio,
         'body_source:=silhouettes',
-        'body_shoulder_frames:=9',
+        'body_proportion_frames:=7',
         'wait_for_assignment:=false',
         'join_timeout:=0.1',
     )
@@ -476,12 +484,15 @@ def test_body_source_silhouettes_measures_the_height_then_the_shoulders(ros_env,
                 pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
             done = len(processed) + 1
             spin_until(lambda: len(processed) >= done, timeout=60.0)
-        spin_until(lambda: 'body_shoulder_width_m' in values, timeout=10.0)
+        spin_until(lambda: 'body_upper_arm_length_m' in values, timeout=10.0)
     process.terminate()
     process.wait(timeout=20)
     assert [m.frame_id for m in processed] == ['tracking'] * frames
     assert float(values['body_height_m']) == pytest.approx(BODY.standing_height(), abs=0.02)
-    measured = float(values['body_shoulder_width_m'])
+    width = float(values['body_shoulder_width_m'])
     # the person's 420 mm against the template's 470 at that height, within a factor step
-    assert measured < 0.97 * shoulder_width(template), values
-    assert measured == pytest.approx(shoulder_width(BODY), abs=0.06 * shoulder_width(BODY))
+    assert width < 0.97 * shoulder_width(template), values
+    assert width == pytest.approx(shoulder_width(BODY), abs=0.06 * shoulder_width(BODY))
+    arms = float(values['body_upper_arm_length_m'])
+    assert arms > 1.03 * upper_arm_length(template), values
+    assert arms == pytest.approx(upper_arm_length(BODY), abs=0.06 * upper_arm_length(BODY))

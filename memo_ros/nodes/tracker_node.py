@@ -41,11 +41,7 @@ from memo_ros.core.multiview.motion import (
     coordinates_from_names,
     named_values_problem,
 )
-from memo_ros.core.multiview.shoulder_width import (
-    MEASURE_FRAMES,
-    ShoulderMeter,
-    shoulder_width,
-)
+from memo_ros.core.multiview.proportions import MEASURE_FRAMES
 from memo_ros.core.multiview.tracking import (
     LOST,
     TRACKING,
@@ -248,14 +244,15 @@ PARAMS: tuple[Param, ...] = (
         read_only=True,
     ),
     Param(
-        'body_shoulder_frames',
+        'body_proportion_frames',
         MEASURE_FRAMES,
         'body_source silhouettes: tracked frames after the start over which the shoulder '
-        'joints are measured: every 3rd, the pose is refined with them at 0.88 - 1.12 of the '
-        "template's width (about 5 frames' work, deferred like a search while behind), and "
-        "the least of a parabola through the summed misfits replaces the template's width "
-        "when 2 % below it (a narrow-shouldered person's model arms reach the arms in the "
-        "silhouettes); 0: the template's width",
+        "joints' width, then the upper arms' length, are each measured: every 3rd, the pose is "
+        "refined with the size at 0.88 - 1.12 of the template's (about 5 frames' work, "
+        'deferred like a search while behind) and scored by how much the silhouettes disagree, '
+        "and the least of a parabola through the summed scores replaces the template's size "
+        "when 2 % below it (a person whose shoulders or arms differ from the template's "
+        "more than the height says); 0: the template's proportions",
         0,
         1000,
         read_only=True,
@@ -560,7 +557,7 @@ class TrackerNode(Node):
         self.body_silhouettes: list | None = (
             [] if self.params['body_source'] == 'silhouettes' else None
         )
-        self.shoulders_reported: ShoulderMeter | None = None  # the meter last reported
+        self.proportions_reported = 0  # measured proportions reported (_report_proportions)
         self.health = NodeHealth(self, self.get_fully_qualified_name(), hardware_id='memo_tracker')
         # join state and commands, shared by the executor and the tracking thread (under self.lock)
         self.lock = threading.Lock()
@@ -1135,7 +1132,7 @@ class TrackerNode(Node):
         self.health.set('limbs_found', result.limbs_found)
         self.health.set('searches_deferred', result.searches_deferred)
         self.health.set('reacquisitions', self.tracker.reacquisitions)
-        self._report_shoulders()
+        self._report_proportions()
         if result.initialised:
             self.health.note('initialisations', 'track (re)initialised')
             self.started_track = True
@@ -1159,21 +1156,23 @@ class TrackerNode(Node):
             outcome += f' heading_confidence={result.heading_confidence:.3f}'
         return outcome
 
-    def _report_shoulders(self) -> None:
-        """Once the shoulders are measured (body_shoulder_frames): publish and report them."""
-        meter = self.tracker.shoulders
-        if meter is None or meter.factor is None or meter is self.shoulders_reported:
-            return
-        self.shoulders_reported = meter
-        self.body = self.tracker.body  # the markers' body from the next frame on
-        width = shoulder_width(self.body)
-        self.health.set('body_shoulder_width_m', f'{width:.3f}')
-        self.get_logger().info(
-            f'shoulder joints measured over {meter.measured} frames: {1e3 * width:.0f} mm apart '
-            f"(the template's {1e3 * shoulder_width(meter.body):.0f} mm; summed misfits "
-            + ', '.join(f'{1e3 * w:.0f} mm: {m:.2f}' for w, m in zip(meter.widths, meter.sums))
-            + ')'
-        )
+    def _report_proportions(self) -> None:
+        """Once a proportion is measured (body_proportion_frames): publish and report it."""
+        meters = self.tracker.proportions.done if self.tracker.proportions else []
+        for meter in meters[self.proportions_reported :]:
+            self.body = self.tracker.body  # the markers' body from the next frame on
+            name = meter.proportion.name
+            size = meter.proportion.size(meter.result)
+            template = meter.proportion.size(meter.body)
+            self.health.set(f'body_{name}_m', f'{size:.3f}')
+            self.get_logger().info(
+                f'{name.replace("_", " ")} measured over {meter.measured} frames: '
+                f"{1e3 * size:.0f} mm (the template's {1e3 * template:.0f} mm; summed silhouette "
+                'disagreement '
+                + ', '.join(f'{1e3 * w:.0f} mm: {m:.2f}' for w, m in zip(meter.sizes, meter.sums))
+                + ')'
+            )
+        self.proportions_reported = len(meters)
 
     def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:
         """body_source silhouettes.
@@ -1203,13 +1202,14 @@ class TrackerNode(Node):
             body, height = scaled_body(self.studio.body, fit.height), fit.height
         self.body = body
         # the studio's initial pose (use_initial_pose) holds for the measured body too; the
-        # shoulders are measured while it tracks
+        # shoulders and the upper arms are measured while it tracks
         settings = replace(
-            tracker_settings(self.params), shoulder_frames=self.params['body_shoulder_frames']
+            tracker_settings(self.params), proportion_frames=self.params['body_proportion_frames']
         )
         self.tracker = ArticulatedTracker(
             body, self.studio.cameras, settings, self.tracker.initial_pose
         )
+        self.proportions_reported = 0
         self.body_silhouettes = None
         self.health.set('body_height_m', f'{height:.3f}')
         self.health.set('body_hull_height_m', f'{hull:.3f}')

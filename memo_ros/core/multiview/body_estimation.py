@@ -57,10 +57,12 @@ Silhouettes = tuple[
 ]  # one frame: the cameras and their person masks
 
 
-def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.ndarray:
+def silhouette_from_contours(
+    table: np.ndarray, width: int, height: int, scale: float = 1.0
+) -> np.ndarray:
     """Return the person mask (bool (height, width)) enclosed by a contour table's closed outlines.
 
-    One per id.
+    One per id; ``scale``: the mask is of the image resized by it (as Camera.scaled maps pixels).
     """
     mask = np.zeros((height, width), np.uint8)
     if not len(table):
@@ -70,10 +72,10 @@ def silhouette_from_contours(table: np.ndarray, width: int, height: int) -> np.n
         if 'contour' in (table.dtype.names or ())
         else np.zeros(len(table), np.uint32)
     )
-    polygons = [
-        np.round(np.stack([table['x'][ids == i], table['y'][ids == i]], axis=1)).astype(np.int32)
-        for i in np.unique(ids)
-    ]
+    xy = np.stack([table['x'], table['y']], axis=1).astype(float)
+    if scale != 1.0:
+        xy = (xy + 0.5) * scale - 0.5
+    polygons = [np.round(xy[ids == i]).astype(np.int32) for i in np.unique(ids)]
     cv2.fillPoly(mask, [p for p in polygons if len(p) >= 3], 1)
     return mask.view(bool)
 

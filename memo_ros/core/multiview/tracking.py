@@ -51,7 +51,7 @@ from memo_ros.core.multiview.motion import (
     ProcessNoise,
     coordinate_rates,
 )
-from memo_ros.core.multiview.shoulder_width import ShoulderMeter, with_shoulder_width
+from memo_ros.core.multiview.proportions import BodyMeter
 from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fields
 from memo_ros.core.multiview.travel import PelvisPath, travel_support
 
@@ -160,9 +160,10 @@ class TrackerSettings:
     # silhouette itself: a part the segmentation missed inside the person's outline is not pulled
     hold_tolerance_px: float = 2.0  # how far outside the silhouette a node may lie unpulled
     hold_cap_px: float = 4.0  # the largest pull of one node in one iteration, pixels
-    # tracked frames after a start over which the shoulder width is measured (shoulder_width.py),
-    # for a body scaled from a template (a real person's); 0: the body's width is the person's
-    shoulder_frames: int = 0
+    # tracked frames after a start over which each of the shoulder width and the upper arms'
+    # length is measured in turn (proportions.py), for a body scaled from a template (a real
+    # person's); 0: the body's proportions are the person's
+    proportion_frames: int = 0
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
@@ -219,15 +220,14 @@ class ArticulatedTracker:
         self.searches_deferred = 0  # searches put off because may_search said no (step)
         self.reacquisitions = 0  # frames after a gap started from the moved last pose (step)
         self._may_search: Callable[[], bool] = _always
-        self.shoulders = (  # the person's shoulder width, measured while tracking
-            ShoulderMeter(
-                body,
-                self.settings.shoulder_frames,
+        self.proportions = (  # the person's shoulder width and upper arms, measured while tracking
+            BodyMeter(
+                self.settings.proportion_frames,
                 lambda b: ArticulatedTracker(
-                    b, cameras, replace(self.settings, shoulder_frames=0)
+                    b, cameras, replace(self.settings, proportion_frames=0)
                 ),
             )
-            if self.settings.shoulder_frames > 0
+            if self.settings.proportion_frames > 0
             else None
         )
         self._fields_of: dict | None = None  # the contours the silhouette fields were made from
@@ -272,7 +272,7 @@ class ArticulatedTracker:
         }
 
     def change_body(self, body: Body) -> None:
-        """Track on with ``body`` (the same coordinates) from the estimate: a width measured."""
+        """Track on with ``body`` (the same coordinates) from the estimate: a size measured."""
         self._use_body(body)
         self.ekf.model = self.model
         if self.twin_ekf is not None:
@@ -414,8 +414,8 @@ class ArticulatedTracker:
                 f'(NIS {report.nis:.1f}, {report.used}/{samples} samples used)',
             )
         self.status = TRACKING
-        if self.shoulders is not None and not initialised:
-            self._measure_shoulders(contours)
+        if self.proportions is not None and not initialised:
+            self._measure_proportions(contours)
         if self.settings.reacquire_gap > 0:  # only a frame after a gap compares with it
             self.centre = self._centre(contours)
         rotations, origins = self.body.forward_kinematics(self.ekf.q)
@@ -443,16 +443,13 @@ class ArticulatedTracker:
             self.searches_deferred,
         )
 
-    def _measure_shoulders(self, contours: dict[str, np.ndarray]) -> None:
-        """Measure the shoulder width in a due frame; once measured, track with that width."""
-        meter = self.shoulders
-        if meter is None or meter.factor is not None:
+    def _measure_proportions(self, contours: dict[str, np.ndarray]) -> None:
+        """Measure a proportion in a due frame; once one is measured, track with its size."""
+        if self.proportions is None:
             return
-        if meter.due() and self._search_allowed():
-            meter.measure(self.ekf.q, contours)
-        factor = meter.factor if meter.finished() else None
-        if factor is not None and factor != 1.0:
-            self.change_body(with_shoulder_width(meter.body, factor))
+        body = self.proportions.frame(self.body, self.ekf.q, contours, self._search_allowed)
+        if body is not None:
+            self.change_body(body)
 
     def _centre(self, contours: dict[str, np.ndarray]) -> np.ndarray | None:
         """Return where the rays through each camera's contour centroid meet (None: < 2)."""
@@ -531,22 +528,17 @@ class ArticulatedTracker:
 
     def local_fit(
         self, q: np.ndarray, contours: dict[str, np.ndarray], iterations: int
-    ) -> tuple[np.ndarray, float]:
-        """Return pose ``q`` fitted to one frame from a narrow prior, and its misfit per sample.
+    ) -> np.ndarray:
+        """Return pose ``q`` fitted to one frame from a narrow prior.
 
         A local fit (the start's ``init_sigma_*``, every part in every camera, in the ranges):
-        where the pose is already about right, unlike :meth:`refit`'s search; the misfit as
-        :meth:`misfit` weighs it, on the same rays and silhouette fields.
+        where the pose is already about right, unlike :meth:`refit`'s search.
         """
         contours, rays, masks = self._whole_frame(contours)
-        samples = sum(len(t) for t in contours.values())
         s = self.settings
         sigma = np.where(np.arange(len(q)) < 3, s.init_sigma_translation, s.init_sigma_rotation)
         P = np.diag(np.concatenate([sigma, sigma]) ** 2)
-        fitted = self._refined(q, np.zeros(len(q)), P, contours, rays, masks, iterations).q.copy()
-        if not samples:
-            return fitted, float('nan')
-        return fitted, self._fit_cost(fitted, contours, rays, masks, samples) / samples
+        return self._refined(q, np.zeros(len(q)), P, contours, rays, masks, iterations).q.copy()
 
     def misfit(self, q: np.ndarray, contours: dict[str, np.ndarray]) -> float:
         """Return pose ``q``'s robust misfit per contour sample (every part in every camera).

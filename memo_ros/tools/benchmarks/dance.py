@@ -316,7 +316,11 @@ def track_dance(
     ``start``: given (the true first pose) or silhouettes (no pose given); ``tracker_body``: truth
     (the dancer's body) or measured (:func:`measured_body`).
     """
-    from memo_ros.core.multiview.shoulder_width import MEASURE_FRAMES, shoulder_width
+    from memo_ros.core.multiview.proportions import (
+        MEASURE_FRAMES,
+        shoulder_width,
+        upper_arm_length,
+    )
     from memo_ros.core.multiview.tracking import TRACKING, ArticulatedTracker, TrackerSettings
 
     body = body or load_studio_actor()
@@ -340,9 +344,10 @@ def track_dance(
             tracking = settings
             if tracker_body == 'measured':
                 model, measured_height = measured_body(scenario.cameras, tables, settings)
-                # the width measured over the first tracked second, as tracker_node does it
+                # the shoulders, then the upper arms, each measured over a tracked second, as
+                # tracker_node does it
                 tracking = replace(
-                    settings, shoulder_frames=settings.shoulder_frames or MEASURE_FRAMES
+                    settings, proportion_frames=settings.proportion_frames or MEASURE_FRAMES
                 )
             tracker = ArticulatedTracker(model, scenario.cameras, tracking, initial_pose=initial)
         started = time.perf_counter()
@@ -369,7 +374,10 @@ def track_dance(
             'body_height_m': body.standing_height(),
             'measured_height_m': measured_height,
             'measured_shoulders_m': (
-                shoulder_width(tracker.body) if tracker and tracker.shoulders else None
+                shoulder_width(tracker.body) if tracker and tracker.proportions else None
+            ),
+            'measured_upper_arms_m': (
+                upper_arm_length(tracker.body) if tracker and tracker.proportions else None
             ),
         },
     )
@@ -564,10 +572,12 @@ def print_dance_benchmark(report: dict) -> None:
         span = f'{min(heights):.3f} - {max(heights):.3f} m' if heights else 'no run'
         widths = [r['measured_shoulders_m'] for r in runs if r.get('measured_shoulders_m')]
         apart = f'{1e3 * min(widths):.0f} - {1e3 * max(widths):.0f} mm' if widths else 'no run'
+        arms = [r['measured_upper_arms_m'] for r in runs if r.get('measured_upper_arms_m')]
+        long = f'{1e3 * min(arms):.0f} - {1e3 * max(arms):.0f} mm' if arms else 'no run'
         print(
             f"{dancer}; the tracker's body: the shipped average scaled to the height measured "
-            f"from the first frame's silhouettes ({span}), its shoulder joints measured over "
-            f'the first tracked second ({apart} apart)'
+            f"from the first frame's silhouettes ({span}), its shoulder joints ({apart} apart) "
+            f'then its upper arms ({long} long) each measured over a tracked second'
         )
     else:
         print(f"{dancer}; the tracker is given the dancer's body")
