@@ -21,6 +21,7 @@ from memo_ros.core.multiview.correspondence import (
     ray_part_hits,
     rig_on_outline,
     rig_outline_candidates,
+    thinned_samples,
 )
 from memo_ros.core.multiview.ekf import ArticulatedEKF, Measurements
 from memo_ros.core.multiview.kinematic_jacobian import (
@@ -45,6 +46,7 @@ from memo_ros.core.multiview.tracking import (
     ArticulatedTracker,
     FirstOutline,
     TrackerSettings,
+    sample_spacing,
 )
 from memo_ros.core.simulation.scenarios import make_scenario
 from memo_ros.core.vision.contours import occluding_contours, silhouette_outlines
@@ -328,6 +330,41 @@ def test_tracker_follows_the_moving_arm_from_perfect_silhouettes():
         rotations, origins = BODY.forward_kinematics(q_true[k])
         errors.append(1000 * np.linalg.norm(result.origins - origins, axis=1).mean())
     assert np.mean(errors) < 10.0, errors
+
+
+def test_thinning_keeps_every_contour_evenly_and_within_the_budget():
+    scenario = make_scenario('studio-arm', BODY, frames=1)
+    q, _ = scenario.coordinates(np.zeros(1))
+    table = _silhouette_contours(scenario.cameras, q[0])['cam_front']
+    assert len(table) > 600
+    thin = thinned_samples(table, 300)
+    assert 150 < len(thin) <= 300
+    assert set(np.unique(thin['contour'])) == set(np.unique(table['contour']))
+    # every k-th sample of each contour: the spacing grows by k, the samples stay in order
+    ratio = sample_spacing(thin) / sample_spacing(table)
+    assert ratio == pytest.approx(np.ceil(len(table) / 300), rel=0.1)
+    assert thinned_samples(table, 0) is table and thinned_samples(table, len(table)) is table
+
+
+def test_a_thinned_intake_tracks_the_moving_arm_as_the_whole_one():
+    """samples_per_camera takes every 3rd or 4th sample here: the track stays within a few mm."""
+    scenario = make_scenario('studio-arm', BODY, frames=20)
+    times = np.arange(20) / scenario.frame_rate
+    q_true, _ = scenario.coordinates(times)
+    frames = [_silhouette_contours(scenario.cameras, q) for q in q_true]
+    errors = {}
+    for budget in (0, 300):
+        settings = TrackerSettings(samples_per_camera=budget)
+        tracker = ArticulatedTracker(BODY, scenario.cameras, settings, initial_pose=q_true[0])
+        errors[budget] = []
+        for k, t in enumerate(times):
+            result = tracker.step(int(t * 1e9), frames[k])
+            assert result.status == TRACKING
+            if budget and k:  # the start (frame 0) weighs whole contours
+                assert result.samples <= 300 * len(scenario.cameras)
+            origins = BODY.forward_kinematics(q_true[k])[1]
+            errors[budget].append(1000 * np.linalg.norm(result.origins - origins, axis=1).mean())
+    assert np.mean(errors[300]) < 10.0 and np.mean(errors[300]) < np.mean(errors[0]) + 2.0, errors
 
 
 def test_no_contours_loses_the_track_and_contours_bring_it_back():

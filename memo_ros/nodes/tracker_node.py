@@ -266,6 +266,15 @@ PARAMS: tuple[Param, ...] = (
         10_000_000,
     ),
     Param(
+        'samples_per_camera',
+        TrackerSettings().samples_per_camera,
+        'contour samples per camera and frame the tracker takes: every k-th of each contour, the '
+        'least k that keeps within it (a 640x480 person has about 1,000 at contour_step 2; the '
+        'noise per sample follows the spacing); fewer cost less per update; 0: all',
+        0,
+        1_000_000,
+    ),
+    Param(
         'hard_limits',
         True,
         'project every estimate into the anatomical joint ranges (knees flex backwards, elbows '
@@ -505,6 +514,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         hold_sigma_px=p['hold_sigma_px'],
         hold_hull=p['hold_hull'],
         reacquire_gap=p['reacquire_gap'],
+        samples_per_camera=p['samples_per_camera'],
         process_noise=ProcessNoise(
             p['process_noise_translation'],
             p['process_noise_root_rotation'],

@@ -89,6 +89,27 @@ class ContourRays:
         return out
 
 
+def thinned_samples(table: np.ndarray, budget: int) -> np.ndarray:
+    """Return every k-th sample of each contour of ``table``, k the least that keeps <= ``budget``.
+
+    The tracker's cost grows with the samples while a contour sampled every 2 px says little
+    more than one sampled every 6 px; the noise per sample follows the spacing (sample_spacing).
+    0 or a table within the budget: the table itself.
+    """
+    n = len(table)
+    if budget <= 0 or n <= budget:
+        return table
+    k = int(np.ceil(n / budget))
+    contour = (
+        np.asarray(table['contour'])
+        if 'contour' in (table.dtype.names or ())
+        else np.zeros(n, np.uint32)
+    )
+    starts = np.flatnonzero(np.concatenate(([True], contour[1:] != contour[:-1])))
+    pos = np.arange(n) - np.repeat(starts, np.diff(starts, append=n))
+    return table[pos % k == 0]
+
+
 def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
     """(N,) px along the outward normal that undo the contour's Gaussian smoothing to first order.
 

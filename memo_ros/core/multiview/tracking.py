@@ -31,6 +31,7 @@ from memo_ros.core.multiview.correspondence import (
     contour_rays,
     rig_on_outline,
     rig_outline_candidates,
+    thinned_samples,
 )
 from memo_ros.core.multiview.ekf import ArticulatedEKF, Measurements, UpdateReport
 from memo_ros.core.multiview.kinematic_jacobian import (
@@ -164,6 +165,9 @@ class TrackerSettings:
     # length is measured in turn (proportions.py), for a body scaled from a template (a real
     # person's); 0: the body's proportions are the person's
     proportion_frames: int = 0
+    # contour samples per camera and frame the tracker takes, every k-th of each contour (the
+    # noise per sample follows the spacing); 0: all
+    samples_per_camera: int = 400
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
@@ -329,7 +333,8 @@ class ArticulatedTracker:
         """
         start = time.perf_counter()
         self._may_search = may_search or _always
-        contours, rays = self._frame_rays(contours)
+        # a start weighs whole contours; a tracked frame takes samples_per_camera of them
+        contours, rays = self._frame_rays(contours, thin=self.status == TRACKING)
         samples = sum(len(t) for t in contours.values())
         if not samples:
             return self._no_body(stamp_ns, start)
@@ -556,10 +561,20 @@ class ArticulatedTracker:
         contours, rays = self._frame_rays(contours)
         return contours, rays, {c: np.ones(len(PART_NAMES), bool) for c in contours}
 
-    def _frame_rays(self, contours: dict[str, np.ndarray]) -> tuple[dict, dict]:
-        """Return the frame's non-empty contours of the rig's cameras, and their samples' rays."""
-        contours = {c: t for c, t in contours.items() if c in self.cameras and len(t)}
+    def _frame_rays(
+        self, contours: dict[str, np.ndarray], thin: bool = False
+    ) -> tuple[dict, dict]:
+        """Return the frame's non-empty contours of the rig's cameras, and their samples' rays.
+
+        ``thin``: at most samples_per_camera of each camera's (thinned_samples).
+        """
         s = self.settings
+        budget = s.samples_per_camera if thin else 0
+        contours = {
+            c: thinned_samples(t, budget)
+            for c, t in contours.items()
+            if c in self.cameras and len(t)
+        }
         rays = {
             c: contour_rays(self.cameras[c], t, s.contour_smoothing, s.smoothing_shift)
             for c, t in contours.items()
