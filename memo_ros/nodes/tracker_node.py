@@ -268,9 +268,10 @@ PARAMS: tuple[Param, ...] = (
     Param(
         'samples_per_camera',
         TrackerSettings().samples_per_camera,
-        'contour samples per camera and frame the tracker takes: every k-th of each contour, the '
-        'least k that keeps within it (a 640x480 person has about 1,000 at contour_step 2; the '
-        'noise per sample follows the spacing); fewer cost less per update; 0: all',
+        'contour samples per camera in a tracked frame: every k-th of each contour, the least k '
+        'that keeps within it (the noise per sample follows the spacing; a start takes all); '
+        '400 cuts the update at 1,000 samples a camera by a third to a half but tracked the real '
+        'Pose2Sim demo worse (docs/benchmarks.md); 0: all',
         0,
         1_000_000,
     ),

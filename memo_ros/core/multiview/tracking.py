@@ -167,7 +167,7 @@ class TrackerSettings:
     proportion_frames: int = 0
     # contour samples per camera and frame the tracker takes, every k-th of each contour (the
     # noise per sample follows the spacing); 0: all
-    samples_per_camera: int = 400
+    samples_per_camera: int = 0
     process_noise: ProcessNoise = field(default_factory=ProcessNoise)
 
 
