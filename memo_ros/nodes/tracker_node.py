@@ -1170,8 +1170,9 @@ class TrackerNode(Node):
     def _report_proportions(self) -> None:
         """Once a proportion is measured (body_proportion_frames): publish and report it."""
         meters = self.tracker.proportions.done if self.tracker.proportions else []
-        for meter in meters[self.proportions_reported :]:
+        if len(meters) > self.proportions_reported:
             self.body = self.tracker.body  # the markers' body from the next frame on
+        for meter in meters[self.proportions_reported :]:
             name = meter.proportion.name
             size = meter.proportion.size(meter.result)
             template = meter.proportion.size(meter.body)

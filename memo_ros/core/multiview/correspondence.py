@@ -105,9 +105,20 @@ def thinned_samples(table: np.ndarray, budget: int) -> np.ndarray:
         if 'contour' in (table.dtype.names or ())
         else np.zeros(n, np.uint32)
     )
-    starts = np.flatnonzero(np.concatenate(([True], contour[1:] != contour[:-1])))
-    pos = np.arange(n) - np.repeat(starts, np.diff(starts, append=n))
+    _start, _length, pos = _contour_positions(contour)
     return table[pos % k == 0]
+
+
+def _contour_positions(contour: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per sample: its contour's first index, its contour's length, and its place along it.
+
+    ``contour``: each sample's contour id, the samples of a contour consecutive.
+    """
+    n = len(contour)
+    starts = np.flatnonzero(np.concatenate(([True], contour[1:] != contour[:-1])))
+    lengths = np.diff(starts, append=n)
+    start = np.repeat(starts, lengths)
+    return start, np.repeat(lengths, lengths), np.arange(n) - start
 
 
 def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
@@ -123,12 +134,7 @@ def smoothing_shift(table: np.ndarray, smoothing: float) -> np.ndarray:
     n = len(table)
     if smoothing <= 0 or n < 3:
         return np.zeros(n)
-    contour = np.asarray(table['contour'])
-    starts = np.flatnonzero(np.concatenate(([True], contour[1:] != contour[:-1])))
-    lengths = np.diff(starts, append=n)
-    start = np.repeat(starts, lengths)
-    length = np.repeat(lengths, lengths)
-    pos = np.arange(n) - start
+    start, length, pos = _contour_positions(np.asarray(table['contour']))
     nxt, prv = start + (pos + 1) % length, start + (pos - 1) % length
     x, y = np.asarray(table['x'], float), np.asarray(table['y'], float)
     tx, ty = np.asarray(table['tx'], float), np.asarray(table['ty'], float)

@@ -100,24 +100,40 @@ UPPER_ARM_LENGTH = Proportion('upper_arm_length', upper_arm_length, with_upper_a
 PROPORTIONS = (SHOULDER_WIDTH, UPPER_ARM_LENGTH)
 
 
-def silhouette_disagreement(
-    cameras: dict[str, Camera], body: Body, q: np.ndarray, contours: dict[str, np.ndarray]
-) -> float:
-    """Return the pixels where the model's and the person's silhouettes differ, per person pixel.
+def _score_scale(camera: Camera) -> float:
+    """Return the resize that brings ``camera``'s image within SCORE_PX across."""
+    return min(1.0, SCORE_PX / max(camera.width, camera.height))
 
-    Summed over the cameras with contours; the person's silhouette is what the contours enclose,
-    the model's is ``body`` at pose ``q`` rendered (both at most SCORE_PX across).
-    """
-    total = 0.0
+
+def person_silhouettes(
+    cameras: dict[str, Camera], contours: dict[str, np.ndarray]
+) -> dict[str, np.ndarray]:
+    """Return each camera's person mask, what its contours enclose (at most SCORE_PX across)."""
+    people = {}
     for name, table in contours.items():
         camera = cameras.get(name)
         if camera is None or not len(table):
             continue
-        scale = min(1.0, SCORE_PX / max(camera.width, camera.height))
-        model = render_body(camera, body, q, scale=scale).label > 0
-        person = silhouette_from_contours(table, model.shape[1], model.shape[0], scale)
+        scale = _score_scale(camera)
+        small = camera.scaled(scale)
+        people[name] = silhouette_from_contours(table, small.width, small.height, scale)
+    return people
+
+
+def silhouette_disagreement(
+    cameras: dict[str, Camera], body: Body, q: np.ndarray, people: dict[str, np.ndarray]
+) -> float:
+    """Return the pixels where the model's and the person's silhouettes differ, per person pixel.
+
+    Summed over the cameras of ``people`` (:func:`person_silhouettes`); the model's silhouette
+    is ``body`` at pose ``q`` rendered at the same size.
+    """
+    total = 0.0
+    for name, person in people.items():
         pixels = np.count_nonzero(person)
         if pixels:
+            camera = cameras[name]
+            model = render_body(camera, body, q, scale=_score_scale(camera)).label > 0
             total += np.count_nonzero(model ^ person) / pixels
     return total
 
@@ -189,10 +205,11 @@ class ProportionMeter:
         """Add the silhouettes' disagreement with ``q`` refined at each size in this frame."""
         if not self._fitters:
             self._fitters = [self.fitter(self.proportion.scaled(self.body, f)) for f in FACTORS]
+        people = person_silhouettes(self._fitters[0].cameras, contours)  # the same for every size
         scores = np.array(
             [
                 silhouette_disagreement(
-                    t.cameras, t.body, t.local_fit(q, contours, REFINE_ITERATIONS), contours
+                    t.cameras, t.body, t.local_fit(q, contours, REFINE_ITERATIONS), people
                 )
                 for t in self._fitters
             ]

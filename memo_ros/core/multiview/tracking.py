@@ -419,7 +419,7 @@ class ArticulatedTracker:
                 f'(NIS {report.nis:.1f}, {report.used}/{samples} samples used)',
             )
         self.status = TRACKING
-        if self.proportions is not None and not initialised:
+        if not initialised:
             self._measure_proportions(contours)
         if self.settings.reacquire_gap > 0:  # only a frame after a gap compares with it
             self.centre = self._centre(contours)

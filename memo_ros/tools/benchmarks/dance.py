@@ -543,6 +543,12 @@ def _worst(runs: list[dict]) -> dict:
     return out
 
 
+def _span_mm(runs: list[dict], key: str) -> str:
+    """Return the runs' least and largest ``key`` (m) as 'a - b mm', or 'no run'."""
+    values = [r[key] for r in runs if r.get(key)]
+    return f'{1e3 * min(values):.0f} - {1e3 * max(values):.0f} mm' if values else 'no run'
+
+
 def print_dance_benchmark(report: dict) -> None:
     """One row per run, the worst figures, and where the failing runs failed."""
     w, h = report['size']
@@ -570,10 +576,8 @@ def print_dance_benchmark(report: dict) -> None:
     if report.get('tracker_body', 'truth') == 'measured':
         heights = [r['measured_height_m'] for r in runs if r.get('measured_height_m')]
         span = f'{min(heights):.3f} - {max(heights):.3f} m' if heights else 'no run'
-        widths = [r['measured_shoulders_m'] for r in runs if r.get('measured_shoulders_m')]
-        apart = f'{1e3 * min(widths):.0f} - {1e3 * max(widths):.0f} mm' if widths else 'no run'
-        arms = [r['measured_upper_arms_m'] for r in runs if r.get('measured_upper_arms_m')]
-        long = f'{1e3 * min(arms):.0f} - {1e3 * max(arms):.0f} mm' if arms else 'no run'
+        apart = _span_mm(runs, 'measured_shoulders_m')
+        long = _span_mm(runs, 'measured_upper_arms_m')
         print(
             f"{dancer}; the tracker's body: the shipped average scaled to the height measured "
             f"from the first frame's silhouettes ({span}), its shoulder joints ({apart} apart) "
