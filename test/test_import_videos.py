@@ -157,6 +157,16 @@ def test_cli_round_trip_and_scaled_import(simulated, tmp_path):
                 interpolation=cv2.INTER_AREA,
             )
             assert np.array_equal(np.frombuffer(bgr, np.uint8).reshape(expected.shape), expected)
+    stepped = import_videos(
+        videos, tmp_path / 'v' / 'calibration.toml', tmp_path / 'stepped', frames=(0, None, 2)
+    )
+    assert stepped.frames == {c.name: 2 for c in studio.cameras}
+    assert Studio.load(stepped.studio).frame_rate == pytest.approx(studio.frame_rate / 2)
+    for cam in studio.cameras:  # frames 0 and 2, at their own stamps
+        topic = f'/{cam.name}/image_raw'
+        assert [s[1] for s in images(tmp_path / 'stepped')[topic]] == [
+            s[1] for s in original[topic][0:3:2]
+        ]
 
 
 def test_names_order_rename_and_offsets(simulated, tmp_path):
@@ -292,12 +302,14 @@ def test_fit_camera_without_known_size_takes_the_video_size():
 
 def test_option_parsing():
     assert (
-        parse_frames('2:7') == (2, 7)
-        and parse_frames(':5') == (0, 5)
-        and parse_frames('3:') == (3, None)
+        parse_frames('2:7') == (2, 7, 1)
+        and parse_frames(':5') == (0, 5, 1)
+        and parse_frames('3:') == (3, None, 1)
+        and parse_frames('0:100:2') == (0, 100, 2)
+        and parse_frames('1::3') == (1, None, 3)
     )
     assert parse_offsets(['cam01=0.5', 'cam02=-0.016']) == {'cam01': 0.5, 'cam02': -0.016}
-    for bad in ('5', '5:2', 'a:b', '-1:3'):
+    for bad in ('5', '5:2', 'a:b', '-1:3', '0:4:0', '0:4:x', '0:4:2:1'):
         with pytest.raises(VideoImportError):
             parse_frames(bad)
     with pytest.raises(VideoImportError):

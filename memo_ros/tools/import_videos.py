@@ -98,8 +98,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         '--frames',
-        metavar='FIRST:LAST',
-        help='frame range FIRST <= k < LAST (either may be empty)',
+        metavar='FIRST:LAST[:STEP]',
+        help='frame range FIRST <= k < LAST (either may be empty), every STEP-th frame (default '
+        "1); stamps keep the video's clock, so a step makes the motion between frames faster",
     )
     parser.add_argument(
         '--scale', type=float, default=1.0, help='resize the images by this factor (e.g. 0.25)'
@@ -248,21 +249,29 @@ def _split_names(text: str | None) -> list[str] | None:
     return [n.strip() for n in text.split(',')] if text else None
 
 
-def parse_frames(text: str | None) -> tuple[int, int | None]:
-    """(first, last) of 'FIRST:LAST' (half-open; empty parts mean the start / the end)."""
+def parse_frames(text: str | None) -> tuple[int, int | None, int]:
+    """(first, last, step) of 'FIRST:LAST[:STEP]'.
+
+    Half-open; empty FIRST or LAST mean the start / the end, an empty STEP 1.
+    """
     if not text:
-        return 0, None
+        return 0, None, 1
     parts = text.split(':')
     try:
-        if len(parts) != 2:
+        if len(parts) not in (2, 3):
             raise ValueError
         first = int(parts[0]) if parts[0].strip() else 0
         last = int(parts[1]) if parts[1].strip() else None
+        step = int(parts[2]) if len(parts) == 3 and parts[2].strip() else 1
     except ValueError:
-        raise VideoImportError(f'--frames {text!r}: expected FIRST:LAST, e.g. 0:100') from None
+        raise VideoImportError(
+            f'--frames {text!r}: expected FIRST:LAST or FIRST:LAST:STEP, e.g. 0:100 or 0:100:2'
+        ) from None
     if first < 0 or (last is not None and last <= first):
         raise VideoImportError(f'--frames {text!r}: need 0 <= FIRST < LAST')
-    return first, last
+    if step < 1:
+        raise VideoImportError(f'--frames {text!r}: STEP must be at least 1')
+    return first, last, step
 
 
 def parse_offsets(items: list[str]) -> dict[str, float]:
@@ -413,14 +422,21 @@ def _open_video(path: Path):
     )
 
 
-def _frames(source: VideoSource, first: int, last: int | None) -> Iterator[tuple[int, np.ndarray]]:
-    """(index, BGR frame) of frames first <= k < last, decoded one at a time."""
+def _frames(
+    source: VideoSource, first: int, last: int | None, step: int = 1
+) -> Iterator[tuple[int, np.ndarray]]:
+    """(index, BGR frame) of every step-th frame first <= k < last, decoded one at a time."""
     capture, k = source.capture, 0
     while k < first:  # grab() decodes without converting: exact, unlike seeking
         if not capture.grab():
             return
         k += 1
     while last is None or k < last:
+        if (k - first) % step:
+            if not capture.grab():
+                return
+            k += 1
+            continue
         ok, frame = capture.read()
         if not ok:
             return
@@ -470,7 +486,7 @@ def import_videos(
     rename: bool = False,
     fps: float | None = None,
     offsets: dict[str, float] | None = None,
-    frames: tuple[int, int | None] = (0, None),
+    frames: tuple[int, int | None, int] = (0, None, 1),
     scale: float = 1.0,
     encoding: str = 'mono8',
     crop_tolerance: int = CROP_TOLERANCE,
@@ -551,9 +567,10 @@ def import_videos(
             f'no frames in range {frames[0]}:{"" if frames[1] is None else frames[1]} for '
             f'{", ".join(empty)}'
         )
-    Studio(ros_name(out.name, 0), cameras, body or load_default_body(), rate).save(studio_path)
+    bag_rate = rate / frames[2]  # the bag's images per second: every step-th of the video's
+    Studio(ros_name(out.name, 0), cameras, body or load_default_body(), bag_rate).save(studio_path)
     return ImportResult(
-        out, studio_path, counts, cameras, rate, time.perf_counter() - start, notes
+        out, studio_path, counts, cameras, bag_rate, time.perf_counter() - start, notes
     )
 
 
@@ -562,17 +579,19 @@ def _write_bag(
     cameras: list[Camera],
     out: Path,
     rate: float,
-    frames: tuple[int, int | None],
+    frames: tuple[int, int | None, int],
     encoding: str,
     storage: str,
     progress: bool,
 ) -> dict[str, int]:
     """Stream every video's frames into the bag in stamp order; the number of images per camera."""
-    first, last = frames
+    first, last, step = frames
     infos = [c.to_camera_info_fields() for c in cameras]
     counts = {c.name: 0 for c in cameras}
-    streams = [_frames(s, first, last) for s in sources]
-    total = sum(max(min(s.frame_count, last or s.frame_count) - first, 0) for s in sources)
+    streams = [_frames(s, first, last, step) for s in sources]
+    total = sum(
+        len(range(first, min(s.frame_count, last or s.frame_count), step)) for s in sources
+    )
     bar = Progress(total, 'import', enabled=progress)
     heap = []
 
