@@ -83,11 +83,7 @@ def test_clamp_projects_into_the_ranges_and_wraps_the_other_hinges():
     q[BODY.coordinate_index('knee_l_y')] = 0.7
     q[BODY.coordinate_index('elbow_r_y')] = -8.0
     q[BODY.coordinate_index('elbow_l_z')] = 3 * np.pi + 0.25
-    q[BODY.coordinate_index('hip_l_z')] = 1.05  # a thigh twisted 60 degrees: past a hip's range
-    q[BODY.coordinate_index('hip_r_z')] = -1.2
     out = ANATOMY.clamp(q)
-    assert out[BODY.coordinate_index('hip_l_z')] == 0.8
-    assert out[BODY.coordinate_index('hip_r_z')] == -0.8
     assert out[BODY.coordinate_index('knee_l_y')] == 0.0
     assert out[BODY.coordinate_index('elbow_r_y')] == 0.0
     assert out[BODY.coordinate_index('elbow_l_z')] == pytest.approx(-np.pi + 0.25)

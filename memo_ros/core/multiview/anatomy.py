@@ -21,12 +21,9 @@ from memo_ros.core.geometry.body import JOINT_TREE, ROOT_COORDINATES, Body, othe
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z, rotvec_to_matrix
 
-# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend), of the
-# neck's rotation vector: bent sideways up to 45 degrees, forwards or back up to 57, turned up
-# to 80 (a head turned further is the same cylinder turned by pi the other way: turned_head), and
-# of each hip's twist about the thigh (its rotation vector's z): 46 degrees either way, about a
-# hip's internal (35 - 45) and external (45 - 50) rotation.  Starts on the Pose2Sim demo that put
-# each leg where the other one was twisted a hip by 1.05 rad (60 degrees) to fit as well.
+# anatomical ranges of the hinge coordinates, rad (elbows and knees cannot hyperextend), and of
+# the neck's rotation vector: bent sideways up to 45 degrees, forwards or back up to 57, turned up
+# to 80 (a head turned further is the same cylinder turned by pi the other way: turned_head)
 JOINT_LIMITS: dict[str, tuple[float, float]] = {
     'neck_x': (-0.8, 0.8),
     'neck_y': (-1.0, 1.0),
@@ -41,8 +38,6 @@ JOINT_LIMITS: dict[str, tuple[float, float]] = {
     'knee_r_y': (-2.6, 0.0),
     'ankle_l_y': (-0.9, 0.9),
     'ankle_r_y': (-0.9, 0.9),
-    'hip_l_z': (-0.8, 0.8),
-    'hip_r_z': (-0.8, 0.8),
 }
 # the turn by pi about the body's own vertical: rotations about x and y change sign, about z not
 TWIN_SIGN = {'x': -1.0, 'y': -1.0, 'z': 1.0}
