@@ -291,6 +291,16 @@ PARAMS: tuple[Param, ...] = (
         100.0,
     ),
     Param(
+        'legs_evidence',
+        1.0,
+        'evidence (as twin_evidence) that decides which leg is which: every start also follows '
+        "the pose with its legs exchanged in place (each knee and ankle where the other leg's "
+        "are), which a leg's silhouette cannot tell apart, until one labelling fits better by "
+        "this much, both agree, or 60 frames pass; 0 keeps the start's labelling",
+        0.0,
+        100.0,
+    ),
+    Param(
         'twin_recheck',
         30,
         'frames between two looks at the twin once decided, each refitting the twin from a '
@@ -504,6 +514,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         hard_limits=p['hard_limits'],
         twin_evidence=p['twin_evidence'],
         twin_recheck=p['twin_recheck'],
+        legs_evidence=p['legs_evidence'],
         travel_evidence=p['travel_evidence'],
         travel_speed=p['travel_speed'],
         limb_exchange=p['limb_exchange'],
@@ -1138,6 +1149,8 @@ class TrackerNode(Node):
         self.health.set('heading_confidence', f'{result.heading_confidence:.3f}')
         self.health.set('heading_undecided', str(result.undecided).lower())
         self.health.set('twin_swaps', result.twin_swaps)
+        self.health.set('legs_undecided', str(result.legs_undecided).lower())
+        self.health.set('leg_swaps', result.leg_swaps)
         self.health.set('limb_exchanges', result.limb_exchanges)
         self.health.set('recoveries', result.recoveries)
         self.health.set('limbs_found', result.limbs_found)
@@ -1165,6 +1178,8 @@ class TrackerNode(Node):
         if result.undecided:
             self.health.count('published_undecided')
             outcome += f' heading_confidence={result.heading_confidence:.3f}'
+        if result.legs_undecided:
+            outcome += ' legs_undecided'
         return outcome
 
     def _report_proportions(self) -> None:

@@ -40,6 +40,7 @@ from memo_ros.core.multiview.kinematic_jacobian import (
     normal_jacobian,
     projected_rows,
 )
+from memo_ros.core.multiview.leg_labels import legs_alike, legs_in_place
 from memo_ros.core.multiview.limb_search import (
     LimbPostures,
     limb_postures,
@@ -129,6 +130,10 @@ class TrackerSettings:
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
+    # evidence (sigma^2 per sample, with twin_memory) that decides which leg is which: every start
+    # also follows the pose with its legs exchanged in place (leg_labels.py) until one labelling
+    # fits better by this much, the two agree, or twin_max_frames pass; 0: the start's labelling
+    legs_evidence: float = 1.0
     # evidence per frame (sigma^2 per sample) for the pose walking forwards at twice
     # travel_speed or faster; a pose walking backwards gets a look at its twin (0: off)
     travel_evidence: float = 0.5
@@ -194,6 +199,10 @@ class FrameResult:
         False  # the twin is followed beside the pose: the evidence has not separated them
     )
     twin_swaps: int = 0  # times the twin won and took the pose's place, since the start
+    legs_undecided: bool = False  # the legs exchanged in place are followed beside the pose
+    leg_swaps: int = (
+        0  # times the legs exchanged in place won and took the pose's, since the start
+    )
     limb_exchanges: int = 0  # times a pair of limbs fitted better exchanged, since the start
     recoveries: int = 0  # times a re-search from a broad prior fitted better, since the start
     limbs_found: int = 0  # limbs a start or a recheck moved to a posture of the limb search
@@ -218,6 +227,7 @@ class ArticulatedTracker:
         self._use_body(body)
         self.ekf = ArticulatedEKF(self.model)
         self.twin_swaps = 0
+        self.leg_swaps = 0
         self.limb_exchanges = 0
         self.recoveries = 0
         self.limbs_found = 0  # limbs a start or a recheck moved (_search_limbs)
@@ -264,6 +274,10 @@ class ArticulatedTracker:
         self.twin_age = 0
         self.since_twin = 0  # frames since the twin was last followed
         self.look_wanted = False  # a look at the twin is due since an inconsistent frame
+        self.legs_ekf: ArticulatedEKF | None = None  # the pose with its legs exchanged in place
+        self.leg_evidence = 0.0  # > 0: the leader's legs fit better than those exchanged in place
+        self.legs_age = 0
+        self.legs_of_swaps = 0  # the twin swaps when the rival started: one more restarts it
         self.path = PelvisPath()  # the leader's pelvis: the direction of travel (travel.py)
         # frames since each limb was last searched (_recheck_limbs), staggered: one limb a frame
         self.since_limbs = -np.arange(len(self.limb_postures))
@@ -279,8 +293,9 @@ class ArticulatedTracker:
         """Track on with ``body`` (the same coordinates) from the estimate: a size measured."""
         self._use_body(body)
         self.ekf.model = self.model
-        if self.twin_ekf is not None:
-            self.twin_ekf.model = self.model
+        for rival in (self.twin_ekf, self.legs_ekf):
+            if rival is not None:
+                rival.model = self.model
 
     def _use_body(self, body: Body) -> None:
         """Set what the body decides: motion model, outline nodes, chains, ranges, postures."""
@@ -400,6 +415,8 @@ class ArticulatedTracker:
             self._follow_twin(
                 contours, rays, masks, samples, dt, initialised and not from_pose, free
             )
+        if self.settings.legs_evidence > 0:
+            self._follow_legs(contours, rays, masks, samples, dt, initialised)
         consistent = (
             matched >= self.settings.min_matched_fraction * samples
             and not report.nis > self.settings.nis_limit
@@ -442,6 +459,8 @@ class ArticulatedTracker:
             self.heading_confidence,
             self.undecided,
             self.twin_swaps,
+            self.legs_undecided,
+            self.leg_swaps,
             self.limb_exchanges,
             self.recoveries,
             self.limbs_found,
@@ -598,6 +617,11 @@ class ArticulatedTracker:
         """Return whether both poses are followed and the evidence is not yet decisive."""
         return self.twin_ekf is not None and abs(self.evidence) < self.settings.twin_evidence
 
+    @property
+    def legs_undecided(self) -> bool:
+        """Return whether the legs exchanged in place are followed beside the pose."""
+        return self.legs_ekf is not None
+
     def _clamp(self, ekf: ArticulatedEKF) -> None:
         """Project a filter's pose into the anatomical ranges.
 
@@ -692,6 +716,61 @@ class ArticulatedTracker:
         if confirmed or self.evidence > s.twin_evidence or self.twin_age >= s.twin_max_frames:
             self.twin_ekf = None
             self.since_twin = 0
+
+    # ------------------------------------------------------------ which leg is which
+    def _follow_legs(self, contours, rays, masks, samples: int, dt: float, start: bool) -> None:
+        """Track the pose with its legs exchanged in place beside it; keep the better labelling.
+
+        The rival starts at every start, and again from the new leader when the twin takes the
+        leader's place.  It is weighed as the twin is (the robust contour cost per sample, with
+        ``twin_memory``): past ``legs_evidence`` the better labelling is kept, the rival taking
+        the leader's place if it is the better (a twin being followed then starts again from the
+        new leader).  It is dropped once both put each leg in the same place, or after
+        ``twin_max_frames`` with the better of the two kept.
+        """
+        s = self.settings
+        if start or (self.legs_ekf is not None and self.legs_of_swaps != self.twin_swaps):
+            _, M = self.anatomy.exchange(self.ekf.q, 'legs')  # the rates follow the places
+            self.legs_ekf = ArticulatedEKF(self.model)
+            self.legs_ekf.q = legs_in_place(self.body, self.ekf.q)
+            self.legs_ekf.v = M @ self.ekf.v
+            self.legs_ekf.P = _mapped_covariance(self.ekf.P, M)
+            self.legs_age, self.leg_evidence, self.legs_of_swaps = 0, 0.0, self.twin_swaps
+        rival = self.legs_ekf
+        if rival is None:
+            return
+        counts = self._last_counts
+        if self.legs_age:
+            rival.predict(dt)
+            rival.update(
+                self._measurement_function(contours, rays, masks), s.iterations, s.gate_sigma
+            )
+            if s.hard_limits:
+                self._clamp(rival)
+        lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+        rival_cost = self._fit_cost(rival.q, contours, rays, masks, samples)
+        self._last_counts = counts
+        self.leg_evidence = s.twin_memory * self.leg_evidence + (rival_cost - lead_cost) / max(
+            samples, 1
+        )
+        self.legs_age += 1
+        if self.leg_evidence < -s.legs_evidence or (
+            self.legs_age >= s.twin_max_frames and self.leg_evidence < 0
+        ):
+            self.ekf, rival = rival, self.ekf
+            self.legs_ekf = rival
+            self.leg_evidence = -self.leg_evidence
+            self.leg_swaps += 1
+            self.exchange_tried['legs'] = self.anatomy.difference(self.ekf.q, 'legs')
+            if self.twin_ekf is not None:  # the twin of the labelling that lost: again, refitted
+                self.twin_ekf = self._twin_filter(self.ekf, self.ekf.q)
+                self.twin_age = 0
+        if (
+            self.leg_evidence > s.legs_evidence
+            or self.legs_age >= s.twin_max_frames
+            or legs_alike(self.body, self.ekf.q, rival.q)
+        ):
+            self.legs_ekf = None
 
     def _exchange_limbs(
         self, contours, rays, masks, samples: int, linearised: float | None = None
