@@ -83,8 +83,8 @@ PARAMS = (
         '',
         "sequence segmenter: a rosbag2 with this camera's image_raw of the same scene "
         '(the recording being replayed, or a clip taken before); the background is learnt from '
-        'it at start-up '
-        'instead of from the first live frames',
+        'it at start-up instead of from the first live frames, its motion tests comparing the '
+        'images nearest 55 ms apart by their stamps',
         read_only=True,
     ),
     Param(
@@ -325,7 +325,7 @@ def recording_background(
         )
     )
     return background_from_frames(
-        frames, params['background_frames'], params['threshold'], person_at
+        frames, params['background_frames'], params['threshold'], person_at, stamps
     )
 
 

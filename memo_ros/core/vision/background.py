@@ -35,6 +35,7 @@ removes such ghosts once he has moved away.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Callable
 
@@ -50,6 +51,12 @@ from memo_ros.core.vision.change_detection import (
 )
 from memo_ros.core.vision.cleanup import cleanup
 
+# the motion tests compare the frames nearest this far apart (at least one frame apart): 3 frames
+# at 60 frames/s, where they were tuned, and 2 at 30; 3 frames were 150 ms at 20 frames/s, and
+# the dancer's ghosts stayed in the Pose2Sim demo's background (its first pass offline: 232 mm
+# MPJPE, against 97 with one frame)
+MOTION_GAP_S = 0.055
+DEFAULT_GAP = 3  # frames, when the frames' times are not known
 MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution per unit of median absolute deviation
 # sqrt(chi2 quantile 1 - 1e-6 with 6 dof per channel / (channels * n)): under noise alone, the
 # summed
@@ -185,7 +192,11 @@ def compare(
 
 # ------------------------------------------------------------------ learning
 def motion_regions(
-    grey: np.ndarray, gap: int = 3, grow: int = 9, threshold: float = 12.0, min_area: int = 50
+    grey: np.ndarray,
+    gap: int = DEFAULT_GAP,
+    grow: int = 9,
+    threshold: float = 12.0,
+    min_area: int = 50,
 ) -> np.ndarray:
     """Per frame, where something moves.
 
@@ -315,7 +326,7 @@ def noise_level(
 
 
 def moving_patches(
-    frames: np.ndarray, gap: int = 3, box: int = 15, still: float = 6.0
+    frames: np.ndarray, gap: int = DEFAULT_GAP, box: int = 15, still: float = 6.0
 ) -> np.ndarray:
     """Per frame.
 
@@ -354,7 +365,7 @@ def estimate_background(
     threshold: float = 12.0,
     iterations: int = 2,
     min_seen: int = 3,
-    gap: int = 3,
+    gap: int = DEFAULT_GAP,
     box: int = 15,
     still: float = 6.0,
     exclude_margin: int = 4,
@@ -528,21 +539,36 @@ def evenly_spaced(count: int, most: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, count - 1, most)).astype(int))
 
 
+def motion_gap(stamps_ns: Sequence[int]) -> int:
+    """Return how many frames apart the motion tests compare: the nearest to MOTION_GAP_S.
+
+    At least one, from the frames' median spacing in time; DEFAULT_GAP without two stamps.
+    """
+    steps = np.diff(np.asarray(stamps_ns, np.int64))
+    steps = steps[steps > 0]
+    if not len(steps):
+        return DEFAULT_GAP
+    return max(1, round(MOTION_GAP_S / (float(np.median(steps)) * 1e-9)))
+
+
 def background_from_frames(
     frames: list[np.ndarray],
     most: int,
     threshold: float = 12.0,
     person_at: Callable[[int], np.ndarray] | None = None,
+    stamps_ns: Sequence[int] | None = None,
 ) -> BackgroundModel:
     """:func:`estimate_background` of at most ``most`` frames spread evenly over a recording.
 
     ``person_at(i)``: where the person is known to be in frame i (bool (H, W)), e.g. the tracked
     body of a first pass over the recording, asked for the frames learnt from only.
+    ``stamps_ns``: the frames' times, which set the motion tests' gap (:func:`motion_gap`).
     """
     if not frames:
         raise ValueError('no frames to learn the background from')
     chosen = evenly_spaced(len(frames), most)
     known = None if person_at is None else np.stack([person_at(int(i)) for i in chosen])
+    gap = DEFAULT_GAP if stamps_ns is None else motion_gap([stamps_ns[i] for i in chosen])
     return estimate_background(
-        np.stack([frames[i] for i in chosen]), threshold, known_person=known
+        np.stack([frames[i] for i in chosen]), threshold, gap=gap, known_person=known
     )
