@@ -296,7 +296,8 @@ PARAMS: tuple[Param, ...] = (
         'evidence (as twin_evidence) that decides which leg is which: every start also follows '
         "the pose with its legs exchanged in place (each knee and ankle where the other leg's "
         "are), which a leg's silhouette cannot tell apart, until one labelling fits better by "
-        "this much, both agree, or 60 frames pass; 0 keeps the start's labelling",
+        'this much, both agree, the rival is behind after 3 frames, or 60 frames pass; 0 keeps '
+        "the start's labelling",
         0.0,
         100.0,
     ),

@@ -725,8 +725,11 @@ class ArticulatedTracker:
         leader's place.  It is weighed as the twin is (the robust contour cost per sample, with
         ``twin_memory``): past ``legs_evidence`` the better labelling is kept, the rival taking
         the leader's place if it is the better (a twin being followed then starts again from the
-        new leader).  It is dropped once both put each leg in the same place, or after
-        ``twin_max_frames`` with the better of the two kept.
+        new leader).  It is dropped once both put each leg in the same place, after
+        ``twin_max_frames`` with the better of the two kept, or when it is behind after
+        TWIN_CHECK_FRAMES, as a twin's check is: a rival that loses its first frames and then wins
+        is mostly a leader that lost a leg for a while (without this, 3 of 10 first passes of the
+        Pose2Sim demo, started at heights 1e-6 apart, swapped the legs so for 15 - 37 frames).
         """
         s = self.settings
         if start or (self.legs_ekf is not None and self.legs_of_swaps != self.twin_swaps):
@@ -767,6 +770,7 @@ class ArticulatedTracker:
                 self.twin_age = 0
         if (
             self.leg_evidence > s.legs_evidence
+            or (self.legs_age >= TWIN_CHECK_FRAMES and self.leg_evidence > 0)
             or self.legs_age >= s.twin_max_frames
             or legs_alike(self.body, self.ekf.q, rival.q)
         ):
