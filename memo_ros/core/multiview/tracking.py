@@ -277,7 +277,6 @@ class ArticulatedTracker:
         self.legs_ekf: ArticulatedEKF | None = None  # the pose with its legs exchanged in place
         self.leg_evidence = 0.0  # > 0: the leader's legs fit better than those exchanged in place
         self.legs_age = 0
-        self.legs_of_swaps = 0  # the twin swaps when the rival started: one more restarts it
         self.path = PelvisPath()  # the leader's pelvis: the direction of travel (travel.py)
         # frames since each limb was last searched (_recheck_limbs), staggered: one limb a frame
         self.since_limbs = -np.arange(len(self.limb_postures))
@@ -411,12 +410,13 @@ class ArticulatedTracker:
         if self.settings.limb_recheck > 0 and not initialised:
             self._recheck_limbs(contours, rays, masks)
         self.path.add(stamp_ns * 1e-9, self.ekf.q)
+        lead_cost = None  # the pose's robust misfit, once weighed against a rival
         if self.settings.twin_evidence > 0:
-            self._follow_twin(
+            lead_cost = self._follow_twin(
                 contours, rays, masks, samples, dt, initialised and not from_pose, free
             )
         if self.settings.legs_evidence > 0:
-            self._follow_legs(contours, rays, masks, samples, dt, initialised)
+            self._follow_legs(contours, rays, masks, samples, dt, initialised, lead_cost)
         consistent = (
             matched >= self.settings.min_matched_fraction * samples
             and not report.nis > self.settings.nis_limit
@@ -640,7 +640,7 @@ class ArticulatedTracker:
 
     def _follow_twin(
         self, contours, rays, masks, samples: int, dt: float, start_twin: bool, free: np.ndarray
-    ) -> None:
+    ) -> float | None:
         """Track the leader's twin beside it; weigh the two by their fit to this frame's contours.
 
         The twin starts at every initialisation from the silhouettes, every
@@ -650,7 +650,8 @@ class ArticulatedTracker:
         ``travel_evidence`` times how clearly the leader walks forwards (travel.py),
         with memory; past ``twin_evidence`` the better pose is kept (the twin taking
         the leader's place if it is the better), or after ``twin_max_frames``.  A
-        decided leader that walks backwards gets a look at its twin.
+        decided leader that walks backwards gets a look at its twin.  Returns the misfit of the
+        pose that leads after this frame when the twin was weighed (None when it was not).
         """
         s = self.settings
         self.since_twin += 1
@@ -664,9 +665,9 @@ class ArticulatedTracker:
                 walking < -TRAVEL_LOOK_SUPPORT and self.since_twin >= TRAVEL_LOOK_FRAMES
             )
             if not (start_twin or due or self.look_wanted):
-                return
+                return None
             if not start_twin and not self._search_allowed():
-                return  # due again next frame
+                return None  # due again next frame
             self.look_wanted = False
             self.twin_ekf = self._twin_filter(self.ekf, free)
             # a look again while decided is a check: the leader keeps its place unless the twin
@@ -712,33 +713,51 @@ class ArticulatedTracker:
             self.ekf, self.twin_ekf = twin, self.ekf
             self.evidence = -self.evidence
             self.twin_swaps += 1
+            lead_cost = twin_cost
+            if self.legs_ekf is not None:  # the legs of the pose that lost: again, from the new
+                self._start_legs()
         confirmed = self.twin_check and self.twin_age >= TWIN_CHECK_FRAMES and self.evidence > 0
         if confirmed or self.evidence > s.twin_evidence or self.twin_age >= s.twin_max_frames:
             self.twin_ekf = None
             self.since_twin = 0
+        return lead_cost
 
     # ------------------------------------------------------------ which leg is which
-    def _follow_legs(self, contours, rays, masks, samples: int, dt: float, start: bool) -> None:
+    def _start_legs(self) -> None:
+        """Start following the pose with its legs exchanged in place (the rates follow places)."""
+        _, M = self.anatomy.exchange(self.ekf.q, 'legs')
+        self.legs_ekf = ArticulatedEKF(self.model)
+        self.legs_ekf.q = legs_in_place(self.body, self.ekf.q)
+        self.legs_ekf.v = M @ self.ekf.v
+        self.legs_ekf.P = _mapped_covariance(self.ekf.P, M)
+        self.legs_age, self.leg_evidence = 0, 0.0
+
+    def _follow_legs(
+        self,
+        contours,
+        rays,
+        masks,
+        samples: int,
+        dt: float,
+        start: bool,
+        lead_cost: float | None = None,
+    ) -> None:
         """Track the pose with its legs exchanged in place beside it; keep the better labelling.
 
         The rival starts at every start, and again from the new leader when the twin takes the
-        leader's place.  It is weighed as the twin is (the robust contour cost per sample, with
-        ``twin_memory``): past ``legs_evidence`` the better labelling is kept, the rival taking
-        the leader's place if it is the better (a twin being followed then starts again from the
-        new leader).  It is dropped once both put each leg in the same place, after
+        leader's place (_follow_twin).  It is weighed as the twin is (the robust contour cost per
+        sample, with ``twin_memory``): past ``legs_evidence`` the better labelling is kept, the
+        rival taking the leader's place if it is the better (a twin being followed then starts
+        again from the new leader).  It is dropped once both put each leg in the same place, after
         ``twin_max_frames`` with the better of the two kept, or when it is behind after
         TWIN_CHECK_FRAMES, as a twin's check is: a rival that loses its first frames and then wins
         is mostly a leader that lost a leg for a while (without this, 3 of 10 first passes of the
         Pose2Sim demo, started at heights 1e-6 apart, swapped the legs so for 15 - 37 frames).
+        ``lead_cost``: the pose's misfit if this frame already weighed it (_follow_twin's).
         """
         s = self.settings
-        if start or (self.legs_ekf is not None and self.legs_of_swaps != self.twin_swaps):
-            _, M = self.anatomy.exchange(self.ekf.q, 'legs')  # the rates follow the places
-            self.legs_ekf = ArticulatedEKF(self.model)
-            self.legs_ekf.q = legs_in_place(self.body, self.ekf.q)
-            self.legs_ekf.v = M @ self.ekf.v
-            self.legs_ekf.P = _mapped_covariance(self.ekf.P, M)
-            self.legs_age, self.leg_evidence, self.legs_of_swaps = 0, 0.0, self.twin_swaps
+        if start:
+            self._start_legs()
         rival = self.legs_ekf
         if rival is None:
             return
@@ -750,7 +769,8 @@ class ArticulatedTracker:
             )
             if s.hard_limits:
                 self._clamp(rival)
-        lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+        if lead_cost is None:
+            lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
         rival_cost = self._fit_cost(rival.q, contours, rays, masks, samples)
         self._last_counts = counts
         self.leg_evidence = s.twin_memory * self.leg_evidence + (rival_cost - lead_cost) / max(
