@@ -296,18 +296,20 @@ def test_runtime_parameters_are_validated_and_bad_input_is_counted_with_its_reas
         # sent once t2 is assigned, or a loaded CI machine delivered it first and it counted)
         feed.wait_for(lambda: len(feed.assignments) == 2)
         feed.frame((t1 + t2) // 2, ['cam_side'])  # newer for cam_side, older than t2
+        # intrinsics found fine are checked again when they change
+        feed.camera_info('cam_front', 3 * NS, width=320)
         expected = {
             'dropped.unknown_joint_names': '1',
             'dropped.nonfinite_joint_state': '1',
             'dropped.missing_coordinates': '1',
             'dropped.bad_camera_info': '1',
-            'dropped.camera_info_mismatch': '1',
+            'dropped.camera_info_mismatch': '2',
             'dropped.stamp_not_newer': '2',
-            'dropped.total': '7',
+            'dropped.total': '8',
             'frames_in': '2',
             'assignments_published': '2',
             'joint_states_in': '4',
-            'camera_info_in': '8',
+            'camera_info_in': '9',
         }
         try:  # reports come once a second: wait for one after the last
             feed.wait_for(lambda: all(feed.diagnostics.get(k) == v for k, v in expected.items()))

@@ -790,15 +790,16 @@ class ContourNode(Node):
         self.pub_contours.publish(array_to_pointcloud(result.contours, image.header))
         if with_edges:  # an empty cloud would say "no edge lines found", not "none computed"
             self.pub_edges.publish(array_to_pointcloud(result.edges, image.header))
-        box = PolygonStamped()
-        box.header = image.header
-        if result.box is not None:
-            x, y, w, h = (float(v) for v in result.box)
-            box.polygon.points = [
-                Point32(x=px, y=py, z=0.0)
-                for px, py in ((x, y), (x + w, y), (x + w, y + h), (x, y + h))
-            ]
-        self.pub_box.publish(box)
+        if self.pub_box.get_subscription_count():  # Rohr's walker, a recorder
+            box = PolygonStamped()
+            box.header = image.header
+            if result.box is not None:
+                x, y, w, h = (float(v) for v in result.box)
+                box.polygon.points = [
+                    Point32(x=px, y=py, z=0.0)
+                    for px, py in ((x, y), (x + w, y), (x + w, y + h), (x, y + h))
+                ]
+            self.pub_box.publish(box)
         if self.params['publish_debug_mask']:
             mask = Image()
             mask.header = image.header

@@ -197,6 +197,7 @@ class SelectorNode(Node):
             maxlen=POSTERIOR_HISTORY
         )
         self.info_stamp: dict[str, int] = {}
+        self.checked_info: dict[str, tuple] = {}  # each camera's last intrinsics found fine
         self.last_frame_ns: int | None = None
         self.schedule = DecimationSchedule()  # the frames the graph keeps (the tracker's word)
         self.was_alive = dict.fromkeys(self.names, True)
@@ -347,10 +348,14 @@ class SelectorNode(Node):
     def _on_camera_info(self, cam: str, msg: CameraInfo) -> None:
         self.health.count('camera_info_in')
         stamp = stamp_to_ns(msg.header.stamp)
-        problem = self._check_camera_info(cam, msg)
-        if problem:
-            self.health.drop(*problem)
-            return
+        # a camera sends the same intrinsics with every frame: checked again only when they change
+        intrinsics = (msg.width, msg.height, msg.distortion_model, bytes(msg.d), bytes(msg.k))
+        if self.checked_info.get(cam) != intrinsics:
+            problem = self._check_camera_info(cam, msg)
+            if problem:
+                self.health.drop(*problem)
+                return
+            self.checked_info[cam] = intrinsics
         previous = self.info_stamp.get(cam)
         if previous is not None and stamp == previous:
             self.health.drop('stamp_not_newer', f'{cam}/camera_info repeats its previous stamp')
