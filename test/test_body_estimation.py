@@ -9,6 +9,7 @@ from memo_ros.core.geometry.render import render_labels
 from memo_ros.core.geometry.rotations import matrix_to_rotvec, rot_z
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
+    height_problem,
     hull_overshoot,
     measure_height,
     scaled_body,
@@ -156,3 +157,12 @@ def test_silhouette_from_contours_fills_what_the_contour_node_outlines():
     iou = (filled & mask).sum() / (filled | mask).sum()
     assert iou > 0.9
     assert not silhouette_from_contours(table[:0], 270, 480).any()
+
+
+def test_a_height_outside_a_persons_is_refused_with_its_reason():
+    """Finite is not valid: 0.50 m of silhouettes is not a whole person, 1.75 m is."""
+    assert height_problem(1.75) is None
+    assert height_problem(0.5) == '0.50 m tall, outside 1.30 - 2.30 m'
+    assert height_problem(2.6) is not None
+    assert height_problem(float('nan')) is not None
+    assert height_problem(1.75, 1.8, 2.0) == '1.75 m tall, outside 1.80 - 2.00 m'

@@ -496,3 +496,38 @@ def test_body_source_silhouettes_measures_the_height_the_shoulders_and_the_upper
     arms = float(values['body_upper_arm_length_m'])
     assert arms > 1.03 * upper_arm_length(template), values
     assert arms == pytest.approx(upper_arm_length(BODY), abs=0.06 * upper_arm_length(BODY))
+
+
+def test_body_source_silhouettes_starts_no_body_outside_a_persons_height(ros_env, tmp_path):
+    """Silhouettes that carve a body outside body_height_min - max start nothing, and say why.
+
+    The 1.75 m person is taller than the 1.5 m allowed here, as scraps of a room around a person
+    learnt into the background are smaller than any person: every frame is counted
+    implausible_body and reported waiting, none tracked.
+    """
+    frames = 4
+    scenario, q, studio = _studio_arm(tmp_path, frames)
+    process = _start_tracker(
+        ros_env,
+        studio,
+        'body_source:=silhouettes',
+        'body_height_max:=1.5',
+        'wait_for_assignment:=false',
+        'join_timeout:=0.1',
+    )
+    cams, tables = _camera_contours(scenario, q)
+    with ros_session('body_feeder', ros_env.domain_id) as (node, executor):
+        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        time.sleep(0.5)
+        for k in range(frames):
+            for cam in cams:
+                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            done = len(processed) + 1
+            spin_until(lambda: len(processed) >= done, timeout=60.0)
+        spin_until(lambda: values.get('dropped.implausible_body') == str(frames), timeout=10.0)
+    assert process.poll() is None
+    process.terminate()
+    process.wait(timeout=20)
+    assert [m.frame_id for m in processed] == ['waiting'] * frames
+    assert 'body_height_m' not in values

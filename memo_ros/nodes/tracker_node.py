@@ -31,11 +31,13 @@ from memo_ros.core.latency.decimation import Decimation, DecimationSchedule
 from memo_ros.core.latency.governor import FrameLoad, GovernorSettings, LatencyGovernor
 from memo_ros.core.multiview.anatomy import pose_problem, studio_volume
 from memo_ros.core.multiview.body_estimation import (
+    PERSON_HEIGHT_M,
     estimate_body,
     frame_silhouettes,
+    height_problem,
     scaled_body,
 )
-from memo_ros.core.multiview.body_height import fit_height
+from memo_ros.core.multiview.body_height import HEIGHT_STEPS, fit_height
 from memo_ros.core.multiview.motion import (
     ProcessNoise,
     coordinates_from_names,
@@ -233,6 +235,25 @@ PARAMS: tuple[Param, ...] = (
         'the last are reported waiting)',
         1,
         1000,
+        read_only=True,
+    ),
+    Param(
+        'body_height_min',
+        PERSON_HEIGHT_M[0],
+        'body_source silhouettes: the least standing height the silhouettes may give, m; a '
+        'smaller body is not started (implausible_body: not one whole person in view) and the '
+        'next frames measure again',
+        0.3,
+        3.0,
+        read_only=True,
+    ),
+    Param(
+        'body_height_max',
+        PERSON_HEIGHT_M[1],
+        'body_source silhouettes: the greatest standing height the silhouettes may give, m; '
+        'a taller body is not started, as below body_height_min',
+        0.3,
+        3.0,
         read_only=True,
     ),
     Param(
@@ -558,6 +579,11 @@ class TrackerNode(Node):
             PARAMS,
             on_change=lambda: self.health.guard(self._on_parameters_set, 'parameter change')(),
         )
+        if self.params['body_height_min'] >= self.params['body_height_max']:
+            raise ValueError(
+                f'body_height_min ({self.params["body_height_min"]}) must be below '
+                f'body_height_max ({self.params["body_height_max"]})'
+            )
         self.studio = studio_from_node(self)
         self.body = self.studio.body
         self.camera_names = self.studio.camera_names
@@ -1202,6 +1228,14 @@ class TrackerNode(Node):
             )
         self.proportions_reported = len(meters)
 
+    def _implausible_body(self, why: str) -> None:
+        """Count a frame whose silhouettes carve no person's height (body_height_min/max)."""
+        self.health.drop(
+            'implausible_body',
+            f'body not started from the silhouettes: {why} (body_height_min, body_height_max): '
+            'not one whole person in view; measuring again',
+        )
+
     def _measure_body(self, contours: dict[str, np.ndarray]) -> bool:
         """body_source silhouettes.
 
@@ -1219,7 +1253,16 @@ class TrackerNode(Node):
             self.health.drop('measuring_body', f'body not measured: {exc}; trying again')
             return False
         hull, fit = height, None
-        if self.params['body_height_fit']:
+        low, high = self.params['body_height_min'], self.params['body_height_max']
+        fitted = self.params['body_height_fit']
+        reach = HEIGHT_STEPS[-1] if fitted else 1.0  # the most the fit raises the hull's height
+        if height_problem(hull, low / reach, high):
+            self._implausible_body(
+                f'their visual hull is {hull:.2f} m tall, and no standing height fitted from it '
+                f'(up to {reach:.2f} times that) is within {low:.2f} - {high:.2f} m'
+            )
+            return False
+        if fitted:
             fit = fit_height(
                 self.studio.body,
                 self.studio.cameras,
@@ -1228,6 +1271,10 @@ class TrackerNode(Node):
                 tracker_settings(self.params),
             )
             body, height = scaled_body(self.studio.body, fit.height), fit.height
+        problem = height_problem(height, low, high)
+        if problem:
+            self._implausible_body(f'they give a person {problem}')
+            return False
         self.body = body
         # the studio's initial pose (use_initial_pose) holds for the measured body too; the
         # shoulders and the upper arms are measured while it tracks

@@ -34,6 +34,12 @@ from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render_labels
 
 HEAD_COLUMN = 0.045  # radius of the column the head's top is sought in, of the hull's extent
+# standing heights a measured body may have, m: an adult's (the template's proportions are an
+# adult's; below 1.4 m is under the first percentile of adult women), with the measurement's few
+# per cent of margin.  Outside them the silhouettes are not one whole person: in a recording
+# without empty frames, a person who never moves is learnt into the background, and scraps of
+# the room carved hulls 0.5 - 1.1 m tall (the Pose2Sim static trial)
+PERSON_HEIGHT_M = (1.3, 2.3)
 
 
 @dataclass
@@ -287,6 +293,15 @@ def hull_overshoot(
     if own is None:
         return 0.0
     return own.height_over(ground) - body.standing_height()
+
+
+def height_problem(
+    height: float, low: float = PERSON_HEIGHT_M[0], high: float = PERSON_HEIGHT_M[1]
+) -> str | None:
+    """Return why ``height`` (m) cannot be the person's standing height, or None when it can."""
+    if not np.isfinite(height) or not low <= height <= high:
+        return f'{height:.2f} m tall, outside {low:.2f} - {high:.2f} m'
+    return None
 
 
 def scaled_body(template: Body, height: float, name: str | None = None) -> Body:
