@@ -250,3 +250,23 @@ def test_the_motion_tests_compare_frames_a_time_apart_not_a_count_of_frames():
     assert too_far.unseen.sum() > 500
     too_near = estimate_background(images, gap=1)
     assert (np.abs(too_near.image.astype(int) - bg).max(axis=-1) > 25).sum() > 100
+
+
+def test_a_live_sequence_segmenter_learns_from_frames_a_time_apart():
+    """Learning from its first frames live, as from a recording: the stamps set the gap.
+
+    The walk-off at 20 frames/s (40 frames): with their stamps the frames 55 ms apart are
+    compared (one apart) and no pixel is left unseen or wrong; without them, 3 frames (150 ms).
+    """
+    bg, images, _ = sequence(120)
+    frames = images[::3]
+    stamps = [round(k * 1e9 / 20) for k in range(len(frames))]
+    learnt = {}
+    for timed in (True, False):
+        pipeline = ContourPipeline(segmenter='sequence', background_frames=len(frames))
+        for frame, stamp in zip(frames, stamps):
+            pipeline.process(frame, stamp_ns=stamp if timed else None)
+        learnt[timed] = pipeline.segmenter.method.model
+    error = np.abs(learnt[True].image.astype(int) - bg).max(axis=-1)
+    assert (error > 25).sum() == 0 and learnt[True].unseen.sum() < 100
+    assert learnt[False].unseen.sum() > 500

@@ -760,7 +760,7 @@ class ContourNode(Node):
         # none), asked at every frame: a subscriber discovered late gets them from then on
         mode = self.params['edges']
         with_edges = edges_wanted(mode, self.pub_edges.get_subscription_count())
-        result = self.pipeline.process(image, edges=with_edges)
+        result = self.pipeline.process(image, edges=with_edges, stamp_ns=stamp)
         if not with_edges and edges_wanted(mode, self.pub_edges.get_subscription_count()):
             # matched while this frame was processed: its edge lines go out with it all the same
             start = time.perf_counter()

@@ -467,6 +467,7 @@ class SequenceSegmenter:
         """Forget the model and learn again from the next frames."""
         self.model: BackgroundModel | None = None
         self._frames: list[np.ndarray] = []
+        self._stamps: list[int | None] = []  # the gathered frames' times, ns (None: not known)
         self._previous: np.ndarray | None = None
         self._still_run: np.ndarray | None = None
         self._flagged: np.ndarray | None = None
@@ -477,22 +478,26 @@ class SequenceSegmenter:
         For example one estimated offline from the whole sequence.
         """
         self.model = model
-        self._frames = []
+        self._frames, self._stamps = [], []
 
-    def segment(self, image: np.ndarray) -> ChangeResult | None:
+    def segment(self, image: np.ndarray, stamp_ns: int | None = None) -> ChangeResult | None:
         """Eq. (1) of the frame against the background (raw mask, difference, noise).
 
-        None while gathering.
+        None while gathering.  ``stamp_ns``: the frame's time; with every gathered frame's, the
+        motion tests compare frames :func:`motion_gap` apart (about 55 ms), not DEFAULT_GAP.
         """
         frame = as_channels(np.asarray(image))
         if self.model is not None and self.model.image.shape != frame.shape:
             self.reset()  # another image size: start over
         if self.model is None:
             self._frames.append(frame.copy())
+            self._stamps.append(stamp_ns)
             if len(self._frames) < self.learn_frames:
                 return None
-            self.model = estimate_background(np.stack(self._frames), self.threshold)
-            self._frames = []
+            stamps = [s for s in self._stamps if s is not None]
+            gap = motion_gap(stamps) if len(stamps) == len(self._frames) else DEFAULT_GAP
+            self.model = estimate_background(np.stack(self._frames), self.threshold, gap=gap)
+            self._frames, self._stamps = [], []
         result = compare(frame, self.model, self.threshold, self.noise_factor, self.workspace)
         self._flagged = result.mask.copy()
         return result

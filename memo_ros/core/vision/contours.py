@@ -258,13 +258,16 @@ class ContourPipeline:
         """
         self.segmenter.set_roi(roi)
 
-    def process(self, image: np.ndarray, edges: bool | None = None) -> PipelineResult:
+    def process(
+        self, image: np.ndarray, edges: bool | None = None, stamp_ns: int | None = None
+    ) -> PipelineResult:
         """Run one frame through every stage.
 
         Grey uint8 (H, W), or (H, W, C) for the sequence segmenter.
 
         ``edges`` overrides the settings' choice of computing the edge lines (only Rohr's walker
-        uses them: a node computes them when someone listens).
+        uses them: a node computes them when someone listens).  ``stamp_ns``: the frame's time
+        (the sequence segmenter learns from frames a time apart, not a count).
         """
         s = self.settings
         want_edges = s.edges if edges is None else edges
@@ -274,7 +277,7 @@ class ContourPipeline:
         grey = image if image.ndim == 2 else grey_of(image)
         clock = time.perf_counter
         t0 = clock()
-        change = self.segmenter.raw(image if self.segmenter.colour else grey)
+        change = self.segmenter.raw(image if self.segmenter.colour else grey, stamp_ns)
         t1 = clock()
         timings = {'segment': t1 - t0}
         if change is None:

@@ -425,6 +425,7 @@ class Segmenter:
         self.roi: np.ndarray | None = None  # where the tracked body is expected (bool), if known
         self.previous: np.ndarray | None = None  # the previous frame's kept person mask
         self._image: np.ndarray | None = None
+        self._stamp_ns: int | None = None  # the frame raw() was given, its time
         self._window: tuple[int, int, int, int] | None = None  # this frame's (window_margin)
         self._sigma: float | None = None  # the noise of the last whole frame
         self._since_whole = 0  # frames segmented in a window since the last whole one
@@ -445,12 +446,13 @@ class Segmenter:
         """Where the tracked body is expected in the next frames (bool (H, W)); None: not known."""
         self.roi = None if roi is None else np.asarray(roi, bool)
 
-    def raw(self, image: np.ndarray) -> ChangeResult | None:
+    def raw(self, image: np.ndarray, stamp_ns: int | None = None) -> ChangeResult | None:
         """Return the segmenter's eq. (1) result (raw mask, difference, noise).
 
-        None while warming up.
+        None while warming up.  ``stamp_ns``, the frame's time, paces the sequence segmenter's
+        learning (:meth:`SequenceSegmenter.segment`).
         """
-        self._image = image
+        self._image, self._stamp_ns = image, stamp_ns
         self._window = self._choose_window(np.shape(image)[:2])
         if self._window is None:
             return self._whole_frame()
@@ -463,7 +465,10 @@ class Segmenter:
         """Eq. (1) over the whole frame (its noise kept for the windows that follow)."""
         self._window = None
         assert self._image is not None  # raw() keeps the frame before any segmentation
-        self.last_change = self.method.segment(self._image)
+        if isinstance(self.method, SequenceSegmenter):
+            self.last_change = self.method.segment(self._image, self._stamp_ns)
+        else:
+            self.last_change = self.method.segment(self._image)
         if self.last_change is not None:
             self._sigma, self._since_whole = self.last_change.sigma, 0
         return self.last_change
@@ -576,9 +581,9 @@ class Segmenter:
         ]
         return whole_raw, whole_mask, moved
 
-    def process(self, image: np.ndarray) -> Segmentation:
+    def process(self, image: np.ndarray, stamp_ns: int | None = None) -> Segmentation:
         """Segment one frame: grey uint8 (H, W), or (H, W, C) for the sequence segmenter."""
-        change = self.raw(image)
+        change = self.raw(image, stamp_ns)
         if change is None:
             return Segmentation.empty(np.shape(image)[:2], True)
         return self.refine(change)
