@@ -92,6 +92,16 @@ def test_comparison_tells_the_sides_the_heading_and_removes_offsets():
     assert np.nanmax(result.procrustes_mm) < 1e-6
     assert np.nanmean(result.raw_mm) == pytest.approx(1000 * np.linalg.norm([0.02, -0.01, 0.03]))
     assert np.abs(result.heading_error_deg).max() < 1e-6
+    # the offset in the body's frame: it faces 30 degrees, so world x is partly its left
+    forward, left = np.radians(30.0), np.radians(120.0)
+    body = [
+        1000 * (0.02 * np.cos(forward) - 0.01 * np.sin(forward)),
+        1000 * (0.02 * np.cos(left) - 0.01 * np.sin(left)),
+        30.0,
+    ]
+    assert result.body_offset_mm == pytest.approx(np.tile(body, (len(JOINTS), 1)))
+    summary = result.summary()['per_joint']['hip_l']
+    assert [summary[f'offset_{a}_mm'] for a in ('forward', 'left', 'up')] == pytest.approx(body)
     turned = np.stack([_standing(210.0) for _ in range(6)])  # facing backwards: sides swapped
     backwards = compare(turned, np.stack([_standing(30.0)] * 6))
     assert not backwards.sides_agree.any()

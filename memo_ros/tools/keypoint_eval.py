@@ -17,6 +17,7 @@ import warnings
 import numpy as np
 
 from memo_ros.core.evaluation.keypoints import (
+    BODY_AXES,
     JOINTS,
     LIMB_PAIRS,
     KeypointComparison,
@@ -113,12 +114,16 @@ def evaluate_keypoints(
 def print_keypoint_report(report: KeypointReport) -> None:
     """Print the per-joint table and the side and heading figures."""
     s = report.summary()
-    print(f'{"joint":<12} {"raw mm":>8} {"offset-removed":>15} {"Procrustes":>11} {"ref px":>7}')
+    print(
+        f'{"joint":<12} {"raw mm":>8} {"offset-removed":>15} {"Procrustes":>11} {"ref px":>7}  '
+        'mean offset mm: forward / left / up'
+    )
     for name in JOINTS:
         j = s['per_joint'][name]
+        offset = ' / '.join(f'{j[f"offset_{axis}_mm"]:.0f}' for axis in BODY_AXES)
         print(
             f'{name:<12} {j["raw_mm"]:8.1f} {j["offset_removed_mm"]:15.1f} '
-            f'{j["procrustes_mm"]:11.1f} {s["reference_reprojection_px"][name]:7.1f}'
+            f'{j["procrustes_mm"]:11.1f} {s["reference_reprojection_px"][name]:7.1f}  {offset}'
         )
     print(
         f'{"all":<12} {s["mpjpe_raw_mm"]:8.1f} {s["mpjpe_offset_removed_mm"]:15.1f} '

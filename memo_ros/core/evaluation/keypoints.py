@@ -72,6 +72,9 @@ LIMB_PAIRS: dict[str, tuple[list[int], list[int]]] = {
 }
 
 
+BODY_AXES = ('forward', 'left', 'up')  # the reference body's frame of a joint's mean offset
+
+
 def model_joints(origins: np.ndarray) -> np.ndarray:
     """Return the compared joint centres (..., 12, 3) from part origins (..., 14, 3)."""
     return origins[..., [PART_NAMES.index(MODEL_PART[j]) for j in JOINTS], :]
@@ -124,6 +127,10 @@ class KeypointComparison:
     turned: np.ndarray  # (F,) bool: the whole body fits better with its sides exchanged
     limbs_swapped: np.ndarray  # (F, pairs) bool: a pair (LIMB_PAIRS) fits better exchanged
     heading_error_deg: np.ndarray  # (F,) signed, in (-180, 180]
+    # (J, 3) each joint's mean offset from the reference in the reference body's frame, mm:
+    # forward, to its left, up.  What offset removal takes away: a constant one is a different
+    # definition of the joint (a model's hip centre against a keypoint's hip), not a tracking error
+    body_offset_mm: np.ndarray
 
     @property
     def sides_agree(self) -> np.ndarray:
@@ -140,6 +147,10 @@ class KeypointComparison:
                 'raw_mm': float(np.nanmean(self.raw_mm[:, k])),
                 'offset_removed_mm': float(np.nanmean(self.offset_removed_mm[:, k])),
                 'procrustes_mm': float(np.nanmean(self.procrustes_mm[:, k])),
+                **{
+                    f'offset_{axis}_mm': float(self.body_offset_mm[k, i])
+                    for i, axis in enumerate(BODY_AXES)
+                },
             }
             for k, name in enumerate(JOINTS)
         }
@@ -190,4 +201,19 @@ def compare(estimate: np.ndarray, reference: np.ndarray) -> KeypointComparison:
         ~(raw_mean < swapped_mean),
         pairs_exchanged(estimate, reference, LIMB_PAIRS),
         np.degrees(np.angle(np.exp(1j * turn))),
+        body_offset(estimate, reference),
     )
+
+
+def body_offset(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Return each joint's mean offset (J, 3) of ``estimate`` from ``reference``, mm.
+
+    In the reference body's frame of each frame (BODY_AXES: forward along its heading, to its
+    left, up); frames or joints missing in either are skipped.
+    """
+    facing = heading(reference)  # (F,)
+    c, s = np.cos(facing)[:, None], np.sin(facing)[:, None]
+    d = estimate - reference  # (F, J, 3)
+    local = np.stack([c * d[..., 0] + s * d[..., 1], c * d[..., 1] - s * d[..., 0], d[..., 2]], -1)
+    with np.errstate(invalid='ignore'):
+        return np.nanmean(local, axis=0) * 1000.0
