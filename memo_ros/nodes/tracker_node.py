@@ -260,8 +260,9 @@ PARAMS: tuple[Param, ...] = (
         'body_height_fit',
         True,
         'body_source silhouettes: the height is the one at which the start fits the last of '
-        "those frames best, refitted from the visual hull's height up to 1.32 times it (a "
-        "person in a lunge or a kick at the first frame; about 1 s more); false: the hull's",
+        "those frames best (contour misfit and silhouettes' disagreement), refitted from the "
+        "visual hull's height up to 1.32 times it (a person in a lunge or a kick at the first "
+        "frame; about 1 s more); false: the hull's",
         read_only=True,
     ),
     Param(
@@ -1294,7 +1295,7 @@ class TrackerNode(Node):
             f'{self.studio.body.standing_height():.3f} m, scaled)'
             + (
                 '; starts fitted at '
-                + ', '.join(f'{h:.3f} m: misfit {m:.2f}' for h, m in fit.tried)
+                + ', '.join(f'{h:.3f} m: score {m:.3f}' for h, m in fit.tried)
                 if fit is not None
                 else ''
             )
