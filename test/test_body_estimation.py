@@ -113,6 +113,17 @@ def test_height_takes_the_upright_frames_not_a_crouch():
     assert height == pytest.approx(1.75, abs=0.006)
 
 
+def _height_fitted(truth, q, cameras):
+    """Return the hull's height and the start's height fit of ``truth`` at ``q``, feet down."""
+    rotations, origins = truth.forward_kinematics(q)
+    q = q.copy()
+    q[2] -= float(lowest_point(truth, rotations, origins))  # feet on the floor
+    masks = silhouettes(truth, q, cameras)
+    contours = {c.name: occluding_contours(silhouette_outlines(m)) for c, m in zip(cameras, masks)}
+    hull, _ = measure_height([(cameras, masks)], template=load_default_body())
+    return hull, fit_height(load_default_body(), cameras, contours, hull)
+
+
 @pytest.mark.parametrize('crouched', [False, True])
 def test_the_start_fits_the_height_a_crouch_hides_from_the_hull(crouched):
     """A 1.72 m person crouching (knees 1.2 rad, hips 1 rad): the hull says 1.555 m.
@@ -129,12 +140,7 @@ def test_the_start_fits_the_height_a_crouch_hides_from_the_hull(crouched):
         for side in ('l', 'r'):
             q[truth.coordinate_index(f'knee_{side}_y')] = -1.2
             q[truth.coordinate_index(f'hip_{side}_y')] = 1.0
-    rotations, origins = truth.forward_kinematics(q)
-    q[2] -= float(lowest_point(truth, rotations, origins))  # feet on the floor
-    masks = silhouettes(truth, q, cameras)
-    contours = {c.name: occluding_contours(silhouette_outlines(m)) for c, m in zip(cameras, masks)}
-    hull, _ = measure_height([(cameras, masks)], template=load_default_body())
-    fit = fit_height(load_default_body(), cameras, contours, hull)
+    hull, fit = _height_fitted(truth, q, cameras)
     if crouched:  # most of what the hull misses is found (1.671 m measured)
         assert hull < 1.6, hull
         assert abs(fit.height - 1.72) < 0.35 * (1.72 - hull), fit
@@ -158,12 +164,7 @@ def test_a_person_leaning_aside_is_not_measured_at_the_hull_of_the_lean():
         q[truth.coordinate_index(name)] = value
     q[truth.coordinate_index('elbow_r_y')] = 1.0
     q[3:6] = matrix_to_rotvec(rot_z(0.7) @ rot_x(0.3))
-    rotations, origins = truth.forward_kinematics(q)
-    q[2] -= float(lowest_point(truth, rotations, origins))  # feet on the floor
-    masks = silhouettes(truth, q, cameras)
-    contours = {c.name: occluding_contours(silhouette_outlines(m)) for c, m in zip(cameras, masks)}
-    hull, _ = measure_height([(cameras, masks)], template=load_default_body())
-    fit = fit_height(load_default_body(), cameras, contours, hull)
+    hull, fit = _height_fitted(truth, q, cameras)
     assert hull < 1.62, hull
     assert abs(fit.height - 1.72) < 0.35 * (1.72 - hull), fit
 

@@ -451,6 +451,25 @@ def test_under_latency_target_the_tracker_announces_a_decimation_and_sheds_alike
     assert values['decimation'] == '2'
 
 
+def _feed_each_frame(ros_env, scenario, q, settled) -> tuple[list, dict]:
+    """Send each pose's exact contours once the tracker reported the frame before.
+
+    Then wait until its /diagnostics values are ``settled``; return /memo/processed and them.
+    """
+    cams, tables = _camera_contours(scenario, q)
+    with ros_session('body_feeder', ros_env.domain_id) as (node, executor):
+        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
+        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
+        time.sleep(0.5)
+        for k in range(len(q)):
+            for cam in cams:
+                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
+            done = len(processed) + 1
+            spin_until(lambda: len(processed) >= done, timeout=60.0)
+        spin_until(lambda: settled(values), timeout=10.0)
+    return processed, values
+
+
 def test_body_source_silhouettes_measures_the_height_the_shoulders_and_the_upper_arms(
     ros_env, tmp_path
 ):
@@ -474,17 +493,9 @@ def test_body_source_silhouettes_measures_the_height_the_shoulders_and_the_upper
         'wait_for_assignment:=false',
         'join_timeout:=0.1',
     )
-    cams, tables = _camera_contours(scenario, q)
-    with ros_session('body_feeder', ros_env.domain_id) as (node, executor):
-        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
-        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
-        time.sleep(0.5)
-        for k in range(frames):
-            for cam in cams:
-                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
-            done = len(processed) + 1
-            spin_until(lambda: len(processed) >= done, timeout=60.0)
-        spin_until(lambda: 'body_upper_arm_length_m' in values, timeout=10.0)
+    processed, values = _feed_each_frame(
+        ros_env, scenario, q, lambda values: 'body_upper_arm_length_m' in values
+    )
     process.terminate()
     process.wait(timeout=20)
     assert [m.frame_id for m in processed] == ['tracking'] * frames
@@ -515,17 +526,9 @@ def test_body_source_silhouettes_starts_no_body_outside_a_persons_height(ros_env
         'wait_for_assignment:=false',
         'join_timeout:=0.1',
     )
-    cams, tables = _camera_contours(scenario, q)
-    with ros_session('body_feeder', ros_env.domain_id) as (node, executor):
-        pubs, processed, values, spin_until = _contour_feeder(node, executor, cams)
-        spin_until(lambda: all(p.get_subscription_count() for p in pubs.values()))
-        time.sleep(0.5)
-        for k in range(frames):
-            for cam in cams:
-                pubs[cam].publish(_cloud(tables[k][cam], T0 + k * DT))
-            done = len(processed) + 1
-            spin_until(lambda: len(processed) >= done, timeout=60.0)
-        spin_until(lambda: values.get('dropped.implausible_body') == str(frames), timeout=10.0)
+    processed, values = _feed_each_frame(
+        ros_env, scenario, q, lambda values: values.get('dropped.implausible_body') == str(frames)
+    )
     assert process.poll() is None
     process.terminate()
     process.wait(timeout=20)
