@@ -16,6 +16,7 @@ exhausted and the graph has drained; the node logs go to OUT.log.
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
 from pathlib import Path
 import struct
 import subprocess
@@ -23,6 +24,7 @@ import sys
 import tempfile
 import threading
 import time
+from typing import Iterator
 
 from memo_ros.core.formats.studio import Studio
 
@@ -246,28 +248,17 @@ def replay(
     inputs = [f'/{c}{s}' for c in cameras for s in INPUT_SUFFIXES]
     pacer = Pacer(frame_timeout)
     segment = player_segment_bytes(Studio.load(studio_file).cameras)
+    # the graph stops after the session has closed (the with's items exit last to first): a
+    # participant that destroys its entities while the graph's leave can deadlock in Fast DDS
+    # 2.14 (the discovery thread holds the PDP lock and waits for the event thread, which waits
+    # for that lock; seen once in ~25 replays, memo-ros replay then hung at exit for good)
     with (
         tempfile.TemporaryDirectory(prefix='memo_replay_') as tmp,
         player_segment(segment, tmp),
         open(log_path, 'w', encoding='utf-8') as log,
+        _launched(studio_file, log, launch_graph) as launch,
         ros_session('memo_replay') as (node, executor),
     ):
-        launch = (
-            subprocess.Popen(
-                [
-                    sys.executable,
-                    '-m',
-                    'memo_ros.tools.cli',
-                    'launch',
-                    str(studio_file),
-                    '--reliable-images',
-                ],
-                stdout=log,
-                stderr=subprocess.STDOUT,
-            )
-            if launch_graph
-            else None
-        )
         stop = threading.Event()
         spinner = threading.Thread(target=lambda: _spin(executor, stop, recorder), daemon=True)
         try:
@@ -306,12 +297,6 @@ def replay(
             recorder.close()
         finally:
             _stop_spinner(stop, spinner)  # no spin may run while the session shuts down
-            if launch is not None and launch.poll() is None:
-                launch.send_signal(2)
-                try:
-                    launch.wait(15)
-                except subprocess.TimeoutExpired:
-                    launch.kill()
     return {
         'frames': pacer.frames,
         'processed': pacer.processed,
@@ -321,6 +306,36 @@ def replay(
         'log': str(log_path),
         'graph_ok': graph_ok,
     }
+
+
+@contextmanager
+def _launched(studio_file: Path, log, launch_graph: bool) -> Iterator[subprocess.Popen | None]:
+    """Run the graph for ``studio_file`` (if ``launch_graph``) and stop it on exit."""
+    launch = (
+        subprocess.Popen(
+            [
+                sys.executable,
+                '-m',
+                'memo_ros.tools.cli',
+                'launch',
+                str(studio_file),
+                '--reliable-images',
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        if launch_graph
+        else None
+    )
+    try:
+        yield launch
+    finally:
+        if launch is not None and launch.poll() is None:
+            launch.send_signal(2)
+            try:
+                launch.wait(15)
+            except subprocess.TimeoutExpired:
+                launch.kill()
 
 
 def _stop_spinner(stop: threading.Event, spinner: threading.Thread) -> None:
