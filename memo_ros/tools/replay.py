@@ -27,6 +27,7 @@ import time
 from typing import Iterator
 
 from memo_ros.core.formats.studio import Studio
+from memo_ros.tools.proc_stats import stop_process
 
 OUTPUT_TOPICS = (
     '/memo/joint_states',
@@ -42,6 +43,7 @@ INPUT_SUFFIXES = ('/image_raw', '/camera_info')
 GRAPH_TIMEOUT_S = 60.0
 MATCH_TIMEOUT_S = 10.0  # for the nodes' side of the matches, once the player's and recorder's
 DRAIN_IDLE_S = 2.0
+LAUNCH_STOP_S = 15.0  # for the launched graph to stop on SIGINT before it is killed
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -330,12 +332,8 @@ def _launched(studio_file: Path, log, launch_graph: bool) -> Iterator[subprocess
     try:
         yield launch
     finally:
-        if launch is not None and launch.poll() is None:
-            launch.send_signal(2)
-            try:
-                launch.wait(15)
-            except subprocess.TimeoutExpired:
-                launch.kill()
+        if launch is not None:
+            stop_process(launch, LAUNCH_STOP_S)
 
 
 def _stop_spinner(stop: threading.Event, spinner: threading.Thread) -> None:

@@ -67,8 +67,8 @@ def fit_height(
     if result.status != TRACKING or result.q is None:
         return HeightFit(hull_height, hull_height)
     people = person_silhouettes(start.cameras, contours)
-    measures = [_measures(start, result.q, contours, people)]
-    if not people or min(measures[0]) <= 0:
+    hull_misfit, hull_disagreement = _measures(start, result.q, contours, people)
+    if not people or min(hull_misfit, hull_disagreement) <= 0:
         return HeightFit(hull_height, hull_height)
     tried: list[tuple[float, float]] = [(hull_height, 2.0)]
     for step in HEIGHT_STEPS[1:]:
@@ -79,7 +79,7 @@ def fit_height(
         q[2] *= step
         fitted = tracker.refit(q, contours)
         misfit, disagreement = _measures(tracker, fitted, contours, people)
-        tried.append((height, misfit / measures[0][0] + disagreement / measures[0][1]))
+        tried.append((height, misfit / hull_misfit + disagreement / hull_disagreement))
         if len(tried) > 2 and tried[-1][1] > tried[-2][1] > tried[-3][1]:
             break  # rising twice: past the least (once may be one fit gone wrong)
     best = int(np.argmin([m for _, m in tried]))

@@ -494,9 +494,9 @@ class SequenceSegmenter:
             self._stamps.append(stamp_ns)
             if len(self._frames) < self.learn_frames:
                 return None
-            stamps = [s for s in self._stamps if s is not None]
-            gap = motion_gap(stamps) if len(stamps) == len(self._frames) else DEFAULT_GAP
-            self.model = estimate_background(np.stack(self._frames), self.threshold, gap=gap)
+            self.model = estimate_background(
+                np.stack(self._frames), self.threshold, gap=motion_gap(self._stamps)
+            )
             self._frames, self._stamps = [], []
         result = compare(frame, self.model, self.threshold, self.noise_factor, self.workspace)
         self._flagged = result.mask.copy()
@@ -544,11 +544,14 @@ def evenly_spaced(count: int, most: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, count - 1, most)).astype(int))
 
 
-def motion_gap(stamps_ns: Sequence[int]) -> int:
+def motion_gap(stamps_ns: Sequence[int | None]) -> int:
     """Return how many frames apart the motion tests compare: the nearest to MOTION_GAP_S.
 
-    At least one, from the frames' median spacing in time; DEFAULT_GAP without two stamps.
+    At least one, from the frames' median spacing in time; DEFAULT_GAP without two stamps or
+    when a frame's is not known (None).
     """
+    if any(s is None for s in stamps_ns):
+        return DEFAULT_GAP
     steps = np.diff(np.asarray(stamps_ns, np.int64))
     steps = steps[steps > 0]
     if not len(steps):
