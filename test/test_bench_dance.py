@@ -63,6 +63,21 @@ def test_a_dance_started_from_the_silhouettes_is_tracked_without_the_true_pose(c
     assert 'started from the silhouettes (no pose given)' in capsys.readouterr().out
 
 
+def test_a_dancer_imaged_as_rounded_parts_is_not_the_trackers_shape_and_is_tracked(capsys):
+    runs = {
+        shape: run_dance_benchmark(
+            [30.0], ['ring4'], frames=6, size=(320, 240), contours='silhouettes', shape=shape
+        )
+        for shape in ('cylinders', 'rounded')
+    }
+    exact, rounded = (runs[shape]['runs'][0] for shape in ('cylinders', 'rounded'))
+    assert rounded['untracked'] == 0 and rounded['frames_side_swap'] == 0
+    assert rounded['mpjpe_mm_mean'] < 30.0, rounded
+    assert rounded['mpjpe_mm_mean'] != exact['mpjpe_mm_mean']  # other silhouettes, other fit
+    print_dance_benchmark(runs['rounded'])
+    assert 'imaged as rounded parts' in capsys.readouterr().out
+
+
 def test_tracker_settings_given_on_the_command_line_reach_the_tracker_and_the_report(capsys):
     report = run_dance_benchmark(
         [30.0],
@@ -165,6 +180,7 @@ def test_a_dancer_of_other_proportions_is_tracked_with_the_measured_average_body
             "unknown --tracker-body 'guessed'; known: truth, measured",
         ),
         (('--body', 'no/such/body.yaml'), '--body no/such/body.yaml: '),
+        (('--shape', 'mesh'), "unknown --shape 'mesh'; known: cylinders, rounded"),
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(args, words):

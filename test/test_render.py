@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from memo_ros.core.geometry.body import load_studio_actor
+from memo_ros.core.geometry.body import PART_NAMES, load_studio_actor
 from memo_ros.core.geometry.camera import Camera
 from memo_ros.core.geometry.render import render, render_body
 from memo_ros.core.geometry.rotations import rot_x
@@ -100,3 +100,54 @@ def test_normals_face_the_camera_and_parts_subset():
         cam, rot_x(0.3)[None] @ rotations[:1], origins[:1], body.semi_axes[:1], body.lengths[:1]
     )
     assert tilted.unoccluded_area[0] > 0
+
+
+def test_a_rounded_part_is_a_capsule_reaching_past_its_joints():
+    # side view, nearly orthographic: a capsule of radius r over [-r/2, L + r/2] is the
+    # rectangle of its straight side (L - r long) plus two half-discs: the cylinder's area
+    # plus (pi - 2) r^2
+    r_cyl, length, dist, f = 0.1, 1.0, 40.0, 10000.0
+    cam = _camera(eye=(dist, 0, 0.5), target=(0, 0, 0.5), width=800, height=800, f=f)
+    rotations, origins = _pose((0, 0, 0))
+    axes, lengths = np.array([[r_cyl, r_cyl]]), np.array([length])
+    cylinder = render(cam, rotations, origins, axes, lengths)
+    capsule = render(cam, rotations, origins, axes, lengths, shape='rounded', normals=True)
+    extra = (np.pi - 2.0) * (f * r_cyl / dist) ** 2
+    assert capsule.unoccluded_area[0] == pytest.approx(
+        cylinder.unoccluded_area[0] + extra, rel=0.02
+    )
+    rows = np.nonzero(capsule.label.any(axis=1))[0]
+    assert (rows[-1] - rows[0] + 1) * dist / f == pytest.approx(length + r_cyl, abs=0.01)
+    n = capsule.normal[capsule.label > 0]
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    assert np.all(n[:, 2] < 0.0)  # every visible surface faces the camera (-z in its frame)
+
+
+def test_a_rounded_limb_tapers_from_its_proximal_joint():
+    # the body's thigh seen from the front: wider near the hip than near the knee, where the
+    # tracker's cylinder has one width
+    body = load_studio_actor()
+    q = np.zeros(len(body.coordinate_names))
+    rotations, origins = body.forward_kinematics(q)
+    thigh = PART_NAMES.index('thigh_l')
+    hip, knee = origins[thigh], origins[PART_NAMES.index('shank_l')]
+    cam = _camera(eye=hip + (6.0, 0.0, -0.2), target=hip + (0.0, 0.0, -0.2), f=2000.0)
+    only = np.array([thigh])
+    widths = []
+    for shape in ('cylinders', 'rounded'):
+        label = render(
+            cam, rotations, origins, body.semi_axes, body.lengths, parts=only, shape=shape
+        ).label
+        near, far = 0.8 * hip + 0.2 * knee, 0.2 * hip + 0.8 * knee
+        rows = [int(cam.project(p[None])[0, 1]) for p in (near, far)]
+        widths.append([int((label[v] > 0).sum()) for v in rows])
+    (cyl_top, cyl_bottom), (top, bottom) = widths
+    assert cyl_top == pytest.approx(cyl_bottom, abs=1)
+    assert top > cyl_top * 1.05 and bottom < cyl_bottom * 0.95
+
+
+def test_an_unknown_shape_is_refused():
+    cam = _camera(eye=(3, 0, 0), target=(0, 0, 0))
+    rotations, origins = _pose((0, 0, 0))
+    with pytest.raises(ValueError, match='unknown shape'):
+        render(cam, rotations, origins, np.array([[0.1, 0.1]]), np.array([1.0]), shape='mesh')

@@ -14,7 +14,7 @@ import pytest
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import load_studio_actor
-from memo_ros.core.geometry.render import render
+from memo_ros.core.geometry.render import SHAPES, render
 from memo_ros.core.geometry.rotations import quat_to_matrix
 from memo_ros.core.simulation.imaging import (
     PART_TINT,
@@ -219,9 +219,16 @@ def test_same_seed_gives_identical_bytes_and_the_seed_drives_the_background(tmp_
     assert first != second  # no noise, but the background texture comes from the seed
 
 
-def test_the_person_is_in_the_image_exactly_where_the_body_renders(tmp_path):
+@pytest.mark.parametrize('shape', SHAPES)
+def test_the_person_is_in_the_image_exactly_where_the_body_renders(tmp_path, shape):
     result = simulate(
-        'studio-arm', tmp_path / 'bag', frames=3, width=WIDTH, height=HEIGHT, options=NOISE_FREE
+        'studio-arm',
+        tmp_path / 'bag',
+        frames=3,
+        width=WIDTH,
+        height=HEIGHT,
+        options=NOISE_FREE,
+        shape=shape,
     )
     body = load_studio_actor()
     scenario = make_scenario('studio-arm', body, WIDTH, HEIGHT, 3)
@@ -232,7 +239,9 @@ def test_the_person_is_in_the_image_exactly_where_the_body_renders(tmp_path):
         images = grey_images(result.bag, f'/{cam.name}/image_raw')[result.empty_frames :]
         for k, (image, message) in enumerate(zip(images, joints)):
             rotations, origins = body.forward_kinematics(truth_q(message, body))
-            rendering = render(cam, rotations, origins, body.semi_axes, body.lengths, normals=True)
+            rendering = render(
+                cam, rotations, origins, body.semi_axes, body.lengths, normals=True, shape=shape
+            )
             nobody = render(
                 cam,
                 rotations,

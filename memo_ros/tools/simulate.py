@@ -19,6 +19,7 @@ import numpy as np
 
 from memo_ros.core.formats.studio import Studio
 from memo_ros.core.geometry.body import Body, load_studio_actor
+from memo_ros.core.geometry.render import SHAPES
 from memo_ros.core.geometry.rotations import matrix_to_quat
 from memo_ros.core.simulation.imaging import (
     ImagingOptions,
@@ -147,6 +148,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f'studio scenarios: the cameras, one of {", ".join(RIGS)} (default orthogonal: '
         'front, side, overhead; ring4: four cameras on an uneven ring)',
     )
+    parser.add_argument(
+        '--shape',
+        default=SHAPES[0],
+        help=f"the body's shape as imaged: {' or '.join(SHAPES)} (elliptic capsules merging "
+        "over the joints: a person the tracker's cylinders fit less exactly); default "
+        f'{SHAPES[0]}',
+    )
     parser.add_argument('--force', action='store_true', help='replace an existing output')
     parser.add_argument(
         '--progress', action='store_true', help='show progress even when not on a terminal'
@@ -173,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f'unknown rig {args.rig!r}; known: {", ".join(RIGS)}')
     if args.rig is not None and not args.scenario.startswith('studio-'):
         raise CliError(f'--rig is for the studio scenarios; {args.scenario} has its own camera')
+    if args.shape not in SHAPES:
+        raise CliError(f'unknown shape {args.shape!r}; known: {", ".join(SHAPES)}')
     if args.heading is not None and args.scenario != 'studio-dance':
         raise CliError(f'--heading is for studio-dance; {args.scenario} takes none')
     heading_deg, chosen = args.heading, 'given'
@@ -198,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
         initial_pose=not args.no_initial_pose,
         heading=None if heading_deg is None else math.radians(heading_deg),
         rig=args.rig,
+        shape=args.shape,
     )
     print(f'scenario   {args.scenario}')
     if heading_deg is not None:
@@ -240,13 +251,15 @@ def simulate(
     initial_pose: bool = True,
     heading: float | None = None,
     rig: str | None = None,
+    shape: str = SHAPES[0],
 ) -> SimulationResult:
     """Simulate ``scenario_name`` into the bag ``out`` and the studio ``out.yaml``.
 
     ``drop`` maps a camera name to the frame index (counting empty frames) from which
     it stops publishing (a camera lost mid-run); ``empty_frames`` overrides the
     scenario's number of empty-scene frames before the subject appears; ``heading``
-    (rad) and ``rig`` go to :func:`make_scenario` (studio-dance's start, a studio's cameras).
+    (rad) and ``rig`` go to :func:`make_scenario` (studio-dance's start, a studio's cameras);
+    ``shape`` is how the body is imaged (:data:`SHAPES`).
     """
     body = body or load_studio_actor()
     options = options or ImagingOptions()
@@ -279,7 +292,7 @@ def simulate(
         start_pose,
     ).save(studio_path)
     start = time.perf_counter()
-    _write_bag(scenario, body, out, options, encoding, storage, progress, drop or {})
+    _write_bag(scenario, body, out, options, encoding, storage, progress, drop or {}, shape)
     return SimulationResult(
         out,
         studio_path,
@@ -299,6 +312,7 @@ def _write_bag(
     storage: str,
     progress: bool,
     drop: dict[str, int],
+    shape: str = SHAPES[0],
 ) -> None:
     rng = np.random.default_rng(options.seed)
     times = np.arange(scenario.frames) / scenario.frame_rate
@@ -330,6 +344,7 @@ def _write_bag(
                     rng,
                     empty=b < 0,
                     colour=encoding not in ('mono8', 'mono16'),
+                    shape=shape,
                 )
                 # camera_info first, as a driver's calibration precedes the pixels that need it
                 writer.write(

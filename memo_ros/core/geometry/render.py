@@ -5,6 +5,10 @@ Every pixel's ray is intersected exactly with each part's elliptic cylinder
 projected bounding box are tested, so the cost follows the body's image size,
 not the image's.  The selector uses it for visibility (Kakadiaris §4, VI =
 visible area / unoccluded area) and the simulator for images.
+
+The simulator can also image a body whose shape is not the tracker's: ``rounded`` parts are
+elliptic capsules (the cylinder's cross-section, half-ellipsoid ends) that reach over their
+joints, as a real person's limbs round off and merge there.
 """
 
 from __future__ import annotations
@@ -13,12 +17,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from memo_ros.core.geometry.body import PART_NAMES
 from memo_ros.core.geometry.camera import Camera
 
 BACKGROUND = 0  # label of pixels that see no part; part i has label i + 1
 NEAR = 1e-6
 MAX_COORDINATE_M = 1e4  # a part farther from the world origin (an absurd pose) is not rendered
 MAX_PIXELS = 1e7  # projected corners are clipped to this many pixels before becoming box bounds
+SHAPES = ('cylinders', 'rounded')  # the tracker's elliptic cylinders; elliptic capsules
+CAP_SHARE = 0.3  # a rounded part's end is at most this share of its length deep
+# a rounded limb is this much wider than its cylinder at the proximal joint, narrower at the distal
+LIMB_TAPER = {'upper_arm': 0.15, 'forearm': 0.12, 'thigh': 0.18, 'shank': 0.15}
 
 
 @dataclass
@@ -49,11 +58,19 @@ def render(
     scale: float = 1.0,
     parts: np.ndarray | None = None,
     normals: bool = False,
+    shape: str = 'cylinders',
 ) -> Rendering:
     """Render parts posed by (rotations (P,3,3), origins (P,3)) into ``camera``.
 
-    The image has ``scale`` times the camera's resolution.
+    The image has ``scale`` times the camera's resolution; ``shape`` is one of :data:`SHAPES`.
     """
+    if shape not in SHAPES:
+        raise ValueError(f'unknown shape {shape!r}; known: {", ".join(SHAPES)}')
+    ends, box_axes = None, semi_axes
+    if shape == 'rounded':
+        caps, taper, origins, lengths = _capsule_spans(rotations, origins, semi_axes, lengths)
+        ends = (caps, taper)
+        box_axes = semi_axes * (1.0 + taper[:, None])  # the boxes hold the wider end
     view = camera.scaled(scale) if scale != 1.0 else camera
     rays = camera.pixel_grid_rays(scale)  # (H, W, 3) world unit directions
     height, width = rays.shape[:2]
@@ -65,7 +82,7 @@ def render(
     n_parts = len(lengths)
     area = np.zeros(n_parts, np.int64)
     selected = range(n_parts) if parts is None else parts
-    boxes = np.stack(_projected_boxes(view, rotations, origins, semi_axes, lengths), 1).tolist()
+    boxes = np.stack(_projected_boxes(view, rotations, origins, box_axes, lengths), 1).tolist()
     _cast_boxes(
         rays,
         centre,
@@ -80,8 +97,27 @@ def render(
         depth,
         normal_img,
         area,
+        ends,
     )
     return Rendering(label, depth, normal_img, area)
+
+
+def _capsule_spans(
+    rotations: np.ndarray, origins: np.ndarray, semi_axes: np.ndarray, lengths: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return each rounded part's end depth and taper (P,), and its whole span's origins, lengths.
+
+    An end is as deep as the part's smaller semi-axis (at most CAP_SHARE of its length) and the
+    capsule reaches half that depth past each joint, so neighbouring parts merge.  The body's
+    limbs (:data:`PART_NAMES`) taper by :data:`LIMB_TAPER`; other parts, or parts not named
+    so, keep their cross-section.
+    """
+    caps = np.minimum(semi_axes.min(axis=1), CAP_SHARE * lengths)
+    start = origins - 0.5 * caps[:, None] * rotations[:, :, 2]
+    taper = np.zeros(len(lengths))
+    if len(lengths) == len(PART_NAMES):
+        taper[:] = [LIMB_TAPER.get(name.rsplit('_', 1)[0], 0.0) for name in PART_NAMES]
+    return caps, taper, start, lengths + caps
 
 
 def _cast_boxes(
@@ -98,6 +134,7 @@ def _cast_boxes(
     depth: np.ndarray,
     normal_img: np.ndarray | None,
     area: np.ndarray,
+    ends: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> None:
     """Cast the parts' boxes (i, u0, u1, v0, v1), in order, into label, depth (and normals).
 
@@ -107,7 +144,7 @@ def _cast_boxes(
     and the hits are then written part after part where nearer than the depth so far, exactly as
     before.
     """
-    cast, o, d, a, b, length = [], [], [], [], [], []
+    cast, o, d, a, b, length, cap, taper = [], [], [], [], [], [], [], []
     for i, u0, u1, v0, v1 in boxes:
         if u0 >= u1 or v0 >= v1:
             continue
@@ -119,11 +156,19 @@ def _cast_boxes(
         a.append(np.full(n, semi_axes[i][0]))
         b.append(np.full(n, semi_axes[i][1]))
         length.append(np.full(n, lengths[i]))
+        if ends is not None:
+            cap.append(np.full(n, ends[0][i]))
+            taper.append(np.full(n, ends[1][i]))
     if not cast:
         return
     cat = np.concatenate
     want_normals = normal_img is not None
-    dist_all, n_all = _hit_local(cat(o), cat(d), cat(a), cat(b), cat(length), want_normals)
+    if ends is None:
+        dist_all, n_all = _hit_local(cat(o), cat(d), cat(a), cat(b), cat(length), want_normals)
+    else:
+        dist_all, n_all = _hit_capsule(
+            cat(o), cat(d), cat(a), cat(b), cat(length), cat(cap), cat(taper), want_normals
+        )
     end = 0
     for i, u0, u1, v0, v1, block in cast:
         begin, end = end, end + len(block)
@@ -182,6 +227,68 @@ def _hit_local(o: np.ndarray, d: np.ndarray, a, b, length, want_normals: bool):
     n = np.stack([points[:, 0] / (a * a), points[:, 1] / (b * b), np.zeros(len(d))], -1)
     n[cap_id == 1] = (0.0, 0.0, -1.0)
     n[cap_id == 2] = (0.0, 0.0, 1.0)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return best, n
+
+
+def _hit_capsule(o: np.ndarray, d: np.ndarray, a, b, length, cap, taper, want_normals: bool):
+    """Ray hits on tapered elliptic capsules in part frames: z in [0, length], ends ``cap`` deep.
+
+    The union of a side (z in [cap, length - cap]; its cross-section the ellipse (a, b) scaled by
+    1 + taper at z = cap/2, the joint, falling linearly to 1 - taper one part's length further)
+    and two ellipsoids centred at z = cap and z = length - cap, each as wide as the side there
+    and ``cap`` deep.  The rays start outside, so the nearest hit on the union is the nearest of
+    its pieces'.  Arguments as :func:`_hit_local`'s, ``cap`` and ``taper`` (N,).
+    """
+    o = np.broadcast_to(o, d.shape)
+    ox, oy = o[:, 0] / a, o[:, 1] / b
+    dx, dy = d[:, 0] / a, d[:, 1] / b
+    slope = -2.0 * taper / np.maximum(length - cap, 1e-12)  # d(scale)/dz; the part is length - cap
+    w0 = 1.0 + taper + slope * (o[:, 2] - 0.5 * cap)  # the scale where the ray starts
+    w1 = slope * d[:, 2]
+    qa = dx * dx + dy * dy - w1 * w1
+    qb = 2.0 * (ox * dx + oy * dy - w0 * w1)
+    qc = ox * ox + oy * oy - w0 * w0
+    disc = qb * qb - 4.0 * qa * qc
+    best = np.full(len(d), np.inf)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        root = np.sqrt(disc)
+        for s_side in ((-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa)):
+            z_side = o[:, 2] + s_side * d[:, 2]
+            ok = (disc >= 0) & (s_side > NEAR) & (z_side >= cap) & (z_side <= length - cap)
+            best = np.where(ok & (s_side < best), s_side, best)
+    piece = np.zeros(len(d), np.int8)  # 0 side, 1 lower end, 2 upper end
+    for k, centre in ((1, cap), (2, length - cap)):
+        width = 1.0 + taper + slope * (centre - 0.5 * cap)
+        ex, ey = ox / width, oy / width
+        fx, fy = dx / width, dy / width
+        oz, dz = (o[:, 2] - centre) / cap, d[:, 2] / cap
+        ea = fx * fx + fy * fy + dz * dz
+        eb = 2.0 * (ex * fx + ey * fy + oz * dz)
+        ec = ex * ex + ey * ey + oz * oz - 1.0
+        e_disc = eb * eb - 4.0 * ea * ec
+        with np.errstate(invalid='ignore', divide='ignore'):
+            s_end = (-eb - np.sqrt(e_disc)) / (2.0 * ea)
+        ok = (e_disc >= 0) & (s_end > NEAR) & (s_end < best)
+        best = np.where(ok, s_end, best)
+        piece = np.where(ok, k, piece)
+    if not want_normals:
+        return best, None
+    points = o + np.where(np.isfinite(best), best, 0.0)[:, None] * d
+    z = points[:, 2]
+    scale = np.where(
+        piece == 0,
+        1.0 + taper + slope * (z - 0.5 * cap),
+        1.0 + taper + slope * (np.where(piece == 1, cap, length - cap) - 0.5 * cap),
+    )
+    centre_z = np.where(piece == 1, cap, length - cap)
+    along = np.where(
+        piece == 0,
+        -scale * slope,  # the cone's gradient along z, (x/a)^2 + (y/b)^2 - s(z)^2 halved
+        (z - centre_z) / np.maximum(cap, 1e-12) ** 2,
+    )
+    lateral = np.where(piece == 0, 1.0, 1.0 / np.maximum(scale, 1e-12) ** 2)
+    n = np.stack([points[:, 0] / (a * a) * lateral, points[:, 1] / (b * b) * lateral, along], -1)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     return best, n
 

@@ -158,8 +158,12 @@ def simulated_frame(
     rng: np.random.Generator,
     empty: bool = False,
     colour: bool = False,
+    shape: str = 'cylinders',
 ) -> np.ndarray:
-    """Render the posed body (none when ``empty``: the studio before him) into one frame."""
+    """Render the posed body (none when ``empty``: the studio before him) into one frame.
+
+    ``shape``: the parts' shape (:data:`memo_ros.core.geometry.render.SHAPES`).
+    """
     rendering = render(
         camera,
         rotations,
@@ -168,5 +172,6 @@ def simulated_frame(
         body.lengths,
         normals=True,
         parts=np.zeros(0, int) if empty else None,
+        shape=shape,
     )
     return compose_frame(background, rendering, camera, options, frame_index, rng, colour)

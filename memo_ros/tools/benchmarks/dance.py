@@ -36,7 +36,7 @@ from memo_ros.core.evaluation.metrics import (
     side_swaps,
 )
 from memo_ros.core.geometry.body import PART_NAMES, Body, load_default_body, load_studio_actor
-from memo_ros.core.geometry.render import render
+from memo_ros.core.geometry.render import SHAPES, render
 from memo_ros.core.multiview.body_estimation import (
     estimate_body,
     frame_silhouettes,
@@ -97,6 +97,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "default: the simulated studios' actor, config/body_studio_actor.yaml)",
     )
     parser.add_argument(
+        '--shape',
+        default=SHAPES[0],
+        help=f"dance: the dancer's shape as imaged, {' or '.join(SHAPES)} (tapered elliptic "
+        "capsules merging over the joints, not the tracker's cylinders); default "
+        f'{SHAPES[0]}',
+    )
+    parser.add_argument(
         '--tracker-body',
         default='truth',
         help="dance: truth (the tracker is given the dancer's body; default) or measured (the "
@@ -132,6 +139,8 @@ def command_words(args: argparse.Namespace) -> list[str]:
         words += ['--body', args.body]
     if args.tracker_body != 'truth':
         words += ['--tracker-body', args.tracker_body]
+    if args.shape != SHAPES[0]:
+        words += ['--shape', args.shape]
     for setting in args.tracker:
         words += ['--tracker', setting]
     return words + ([] if args.frames is None else ['--frames', str(args.frames)])
@@ -160,6 +169,8 @@ def measure(args: argparse.Namespace) -> dict:
         raise CliError(f'unknown --contours {args.contours!r}; known: {", ".join(CONTOURS)}')
     if args.start not in STARTS:
         raise CliError(f'unknown --start {args.start!r}; known: {", ".join(STARTS)}')
+    if args.shape not in SHAPES:
+        raise CliError(f'unknown --shape {args.shape!r}; known: {", ".join(SHAPES)}')
     if args.tracker_body not in TRACKER_BODIES:
         raise CliError(
             f'unknown --tracker-body {args.tracker_body!r}; known: {", ".join(TRACKER_BODIES)}'
@@ -185,6 +196,7 @@ def measure(args: argparse.Namespace) -> dict:
         args.start,
         args.body,
         args.tracker_body,
+        args.shape,
     )
 
 
@@ -229,16 +241,17 @@ def run_dance_benchmark(
     start: str = 'given',
     body_file: str | None = None,
     tracker_body: str = 'truth',
+    shape: str = SHAPES[0],
 ) -> dict:
     """Track studio-dance from every heading on every rig; return the runs and the worst figures.
 
     ``jobs`` runs go in parallel, each in its own process with one BLAS and one OpenCV thread.
     ``body_file``: the dancer's body YAML (default the shipped average); ``tracker_body``: see
-    :data:`TRACKER_BODIES`.
+    :data:`TRACKER_BODIES`; ``shape``: the dancer's as imaged (:data:`SHAPES`).
     """
     overrides = overrides or {}
     cases = [
-        (rig, float(h), frames, size, contours, overrides, start, body_file, tracker_body)
+        (rig, float(h), frames, size, contours, overrides, start, body_file, tracker_body, shape)
         for rig in rigs
         for h in headings_deg
     ]
@@ -268,6 +281,7 @@ def run_dance_benchmark(
         'start': start,
         'body': body_file or DEFAULT_BODY,
         'tracker_body': tracker_body,
+        'shape': shape,
         'limits': {
             'mpjpe_mm_mean': MPJPE_MEAN_MM,
             'mpjpe_mm_max': MPJPE_MAX_MM,
@@ -285,7 +299,7 @@ def _run_case(case: tuple) -> dict:
     import cv2
 
     cv2.setNumThreads(1)
-    rig, heading, frames, size, contours, overrides, start, body_file, tracker_body = case
+    rig, heading, frames, size, contours, overrides, start, body_file, tracker_body, shape = case
     return track_dance(
         rig,
         heading,
@@ -296,6 +310,7 @@ def _run_case(case: tuple) -> dict:
         overrides=overrides,
         start=start,
         tracker_body=tracker_body,
+        shape=shape,
     )
 
 
@@ -309,12 +324,13 @@ def track_dance(
     overrides: dict | None = None,
     start: str = 'given',
     tracker_body: str = 'truth',
+    shape: str = SHAPES[0],
 ) -> dict:
     """Track one studio-dance offline and score it against its truth, frame by frame.
 
     ``body``: the dancer's; ``overrides``: TrackerSettings fields other than their defaults;
     ``start``: given (the true first pose) or silhouettes (no pose given); ``tracker_body``: truth
-    (the dancer's body) or measured (:func:`measured_body`).
+    (the dancer's body) or measured (:func:`measured_body`); ``shape``: the dancer's as imaged.
     """
     from memo_ros.core.multiview.proportions import (
         MEASURE_FRAMES,
@@ -338,7 +354,7 @@ def track_dance(
     result = None
     measured_height = None
     tracker = None
-    for k, tables in enumerate(_contour_frames(scenario, body, q_true, contours)):
+    for k, tables in enumerate(_contour_frames(scenario, body, q_true, contours, shape)):
         if tracker is None:
             model = body
             tracking = settings
@@ -401,13 +417,13 @@ def measured_body(
 
 
 def _contour_frames(
-    scenario: Scenario, body: Body, q: np.ndarray, contours: str
+    scenario: Scenario, body: Body, q: np.ndarray, contours: str, shape: str = SHAPES[0]
 ) -> Iterator[dict[str, np.ndarray]]:
     """Yield every frame's contour tables per camera, as the contour nodes would publish them.
 
     ``images``: the studio's empty frames then the subject, rendered and imaged as the simulator
     does, through :class:`ContourPipeline` with the contour node's studio settings;
-    ``silhouettes``: the exact outlines of the rendered body.
+    ``silhouettes``: the exact outlines of the rendered body; ``shape``: the body's as imaged.
     """
     from memo_ros.core.simulation.imaging import ImagingOptions, background_image, simulated_frame
     from memo_ros.core.vision.contours import (
@@ -425,7 +441,10 @@ def _contour_frames(
             yield {
                 c.name: occluding_contours(
                     silhouette_outlines(
-                        render(c, rotations, origins, body.semi_axes, body.lengths).label > 0
+                        render(
+                            c, rotations, origins, body.semi_axes, body.lengths, shape=shape
+                        ).label
+                        > 0
                     )
                 )
                 for c in cameras
@@ -443,7 +462,16 @@ def _contour_frames(
         tables = {}
         for c in cameras:
             pixels = simulated_frame(
-                c, body, rotations, origins, backgrounds[c.name], options, k, rng, empty=b < 0
+                c,
+                body,
+                rotations,
+                origins,
+                backgrounds[c.name],
+                options,
+                k,
+                rng,
+                empty=b < 0,
+                shape=shape,
             )
             tables[c.name] = pipelines[c.name].process(pixels, edges=False).contours
         if b >= 0:
@@ -573,6 +601,8 @@ def print_dance_benchmark(report: dict) -> None:
     dancer = f'dancer: {report.get("body", DEFAULT_BODY)}'
     if runs:
         dancer += f' ({runs[0].get("body_height_m", float("nan")):.3f} m)'
+    if report.get('shape', SHAPES[0]) != SHAPES[0]:
+        dancer += f', imaged as {report["shape"]} parts'
     if report.get('tracker_body', 'truth') == 'measured':
         heights = [r['measured_height_m'] for r in runs if r.get('measured_height_m')]
         span = f'{min(heights):.3f} - {max(heights):.3f} m' if heights else 'no run'
