@@ -195,6 +195,32 @@ def _turned_round_after_frame_3(name: str, frames: int, settings: TrackerSetting
     return errors, result
 
 
+def test_the_silhouettes_turn_a_start_whose_contours_favour_the_twin_of_a_rounded_person():
+    # a dancer imaged as tapered capsules (not the model's cylinders), the average adult measured
+    # from the silhouettes: at this heading the turned pose fits the contours better, while the
+    # silhouettes' disagreement says which is right (docs/benchmarks.md)
+    from memo_ros.tools.benchmarks.dance import track_dance
+
+    runs = {
+        weight: track_dance(
+            'ring4',
+            292.0,
+            6,
+            (320, 240),
+            'images',
+            overrides={'twin_silhouette': weight},
+            start='silhouettes',
+            tracker_body='measured',
+            shape='rounded',
+        )  # fmt: skip
+        for weight in (0.0, TrackerSettings().twin_silhouette)
+    }
+    contours_alone, with_silhouettes = runs.values()
+    assert contours_alone['frames_side_swap'] == 6  # the contours alone start it turned round
+    assert with_silhouettes['frames_side_swap'] == 0
+    assert with_silhouettes['mpjpe_mm_max'] < 40.0, with_silhouettes
+
+
 def test_a_track_decided_the_wrong_way_round_is_turned_at_the_next_look_at_its_twin():
     """studio-dance, orthogonal rig, facing 90 degrees; the track turned round after frame 3.
 

@@ -324,6 +324,18 @@ PARAMS: tuple[Param, ...] = (
         100.0,
     ),
     Param(
+        'twin_silhouette',
+        1.0,
+        "evidence (sigma^2 per sample) per unit of the silhouettes' disagreement (pixels where "
+        "the model's and the person's silhouettes differ, per person pixel, summed over the "
+        'cameras) that the start and the twin contest add to the contour misfit: a person the '
+        "model's cylinders fit less exactly can fit a turned pose's contours better while the "
+        'silhouettes say otherwise (docs/benchmarks.md, a dancer not shaped like the model); 0: '
+        'the contours alone',
+        0.0,
+        100.0,
+    ),
+    Param(
         'twin_recheck',
         30,
         'frames between two looks at the twin once decided, each refitting the twin from a '
@@ -536,6 +548,7 @@ def tracker_settings(p: dict) -> TrackerSettings:
         lost_after=p['lost_after'],
         hard_limits=p['hard_limits'],
         twin_evidence=p['twin_evidence'],
+        twin_silhouette=p['twin_silhouette'],
         twin_recheck=p['twin_recheck'],
         legs_evidence=p['legs_evidence'],
         travel_evidence=p['travel_evidence'],

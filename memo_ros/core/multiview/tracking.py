@@ -53,7 +53,11 @@ from memo_ros.core.multiview.motion import (
     ProcessNoise,
     coordinate_rates,
 )
-from memo_ros.core.multiview.proportions import BodyMeter
+from memo_ros.core.multiview.proportions import (
+    BodyMeter,
+    person_silhouettes,
+    silhouette_disagreement,
+)
 from memo_ros.core.multiview.silhouette_hold import outside_pull, silhouette_fields
 from memo_ros.core.multiview.travel import PelvisPath, travel_support
 
@@ -128,6 +132,11 @@ class TrackerSettings:
         1.0  # evidence (sigma^2 per sample) that decides leader vs twin; 0: no twin
     )
     twin_memory: float = 0.9  # per-frame factor on the evidence gathered so far
+    # evidence (sigma^2 per sample) per unit of the silhouettes' disagreement (the pixels where
+    # the model's silhouette and the person's differ, per person pixel, summed over the cameras)
+    # the twin contest adds to the contour misfit's: a person the model's shape fits less exactly
+    # can fit the turned pose's contours better while its silhouettes say otherwise; 0: off
+    twin_silhouette: float = 1.0
     twin_recheck: int = 30  # frames between two looks at the twin once decided (0: only at start)
     twin_max_frames: int = 60  # longest the twin is followed before the better of the two is kept
     # evidence (sigma^2 per sample, with twin_memory) that decides which leg is which: every start
@@ -701,9 +710,17 @@ class ArticulatedTracker:
         lead_cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
         twin_cost = self._fit_cost(twin.q, contours, rays, masks, samples)
         self._last_counts = counts
+        shape = 0.0
+        if s.twin_silhouette > 0:
+            people = person_silhouettes(self.cameras, contours)
+            shape = s.twin_silhouette * (
+                silhouette_disagreement(self.cameras, self.body, twin.q, people)
+                - silhouette_disagreement(self.cameras, self.body, self.ekf.q, people)
+            )
         self.evidence = (
             s.twin_memory * self.evidence
             + (twin_cost - lead_cost) / max(samples, 1)  # the fit to the contours
+            + shape  # the fit to the silhouettes
             + s.travel_evidence * walking  # the direction of travel (the twin's is the opposite)
         )
         self.twin_age += 1
@@ -1351,12 +1368,17 @@ class ArticulatedTracker:
         # silhouette before one is chosen
         self._holding = True
         best: tuple[float, np.ndarray, np.ndarray, int] | None = None
+        people = person_silhouettes(self.cameras, contours) if s.twin_silhouette > 0 else {}
         for _, own, other in sorted(candidates, key=lambda c: c[0])[: max(s.init_refits, 1)]:
             moved = 0
             if s.limb_search > 0:
                 own, moved = self._search_limbs(own, contours, rays, masks)
             self._refit(self.ekf, own, contours, rays, masks)
-            cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples)
+            cost = self._fit_cost(self.ekf.q, contours, rays, masks, samples) / max(samples, 1)
+            if people:  # the silhouettes weigh as in the twin contest
+                cost += s.twin_silhouette * silhouette_disagreement(
+                    self.cameras, self.body, self.ekf.q, people
+                )
             if best is None or cost < best[0]:
                 best = (cost, self.ekf.q.copy(), other, moved)
         assert best is not None
