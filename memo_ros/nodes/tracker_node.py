@@ -1127,6 +1127,9 @@ class TrackerNode(Node):
 
     def _track(self, stamp: int, frame: PendingFrame, missing: list[str]) -> str:
         self.health.count('frames')
+        # in the studio's camera order, not the order they came in: the fit sums over the cameras
+        # in this order, and a start turns on the last bit of it (a replay gives the same track)
+        frame.contours = {c: frame.contours[c] for c in self.camera_names if c in frame.contours}
         if missing:
             self.health.count('cameras_missing_in_frame', len(missing))
         if frame.assignment is None:
