@@ -244,7 +244,11 @@ def _hit_capsule(o: np.ndarray, d: np.ndarray, a, b, length, cap, taper, want_no
     ox, oy = o[:, 0] / a, o[:, 1] / b
     dx, dy = d[:, 0] / a, d[:, 1] / b
     slope = -2.0 * taper / np.maximum(length - cap, 1e-12)  # d(scale)/dz; the part is length - cap
-    w0 = 1.0 + taper + slope * (o[:, 2] - 0.5 * cap)  # the scale where the ray starts
+
+    def scale_at(z):  # the cross-section's scale at z (1 + taper at the joint, z = cap / 2)
+        return 1.0 + taper + slope * (z - 0.5 * cap)
+
+    w0 = scale_at(o[:, 2])  # where the ray starts
     w1 = slope * d[:, 2]
     qa = dx * dx + dy * dy - w1 * w1
     qb = 2.0 * (ox * dx + oy * dy - w0 * w1)
@@ -259,7 +263,7 @@ def _hit_capsule(o: np.ndarray, d: np.ndarray, a, b, length, cap, taper, want_no
             best = np.where(ok & (s_side < best), s_side, best)
     piece = np.zeros(len(d), np.int8)  # 0 side, 1 lower end, 2 upper end
     for k, centre in ((1, cap), (2, length - cap)):
-        width = 1.0 + taper + slope * (centre - 0.5 * cap)
+        width = scale_at(centre)
         ex, ey = ox / width, oy / width
         fx, fy = dx / width, dy / width
         oz, dz = (o[:, 2] - centre) / cap, d[:, 2] / cap
@@ -276,12 +280,8 @@ def _hit_capsule(o: np.ndarray, d: np.ndarray, a, b, length, cap, taper, want_no
         return best, None
     points = o + np.where(np.isfinite(best), best, 0.0)[:, None] * d
     z = points[:, 2]
-    scale = np.where(
-        piece == 0,
-        1.0 + taper + slope * (z - 0.5 * cap),
-        1.0 + taper + slope * (np.where(piece == 1, cap, length - cap) - 0.5 * cap),
-    )
     centre_z = np.where(piece == 1, cap, length - cap)
+    scale = scale_at(np.where(piece == 0, z, centre_z))
     along = np.where(
         piece == 0,
         -scale * slope,  # the cone's gradient along z, (x/a)^2 + (y/b)^2 - s(z)^2 halved
