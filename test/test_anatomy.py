@@ -212,7 +212,7 @@ def test_the_silhouettes_turn_a_start_whose_contours_favour_the_twin_of_a_rounde
             start='silhouettes',
             tracker_body='measured',
             shape='rounded',
-        )  # fmt: skip
+        )
         for weight in (0.0, TrackerSettings().twin_silhouette)
     }
     contours_alone, with_silhouettes = runs.values()
